@@ -1,0 +1,56 @@
+# mlsim: `make demo` and `make test` on a fresh machine. Every install step lives here so that CI
+# (`.ci/run` -> `make test`) on a clean checkout needs nothing else.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+# torch is pinned: `pip install torch==2.13.0` takes the machine's local CPU build in seconds, while an
+# unpinned torch would pull gigabytes of CUDA packages.
+TORCH := torch==2.13.0
+PIP := $(PY) -m pip --disable-pip-version-check -q
+PYTEST_ARGS ?=
+
+.PHONY: demo test test-slow bench llvm venv clean
+
+demo: $(STAMP)
+	$(VENV)/bin/mlsim run scenes/mavig_default.toml --out out/demo
+
+test: $(STAMP)
+	$(PY) -m pytest $(PYTEST_ARGS)
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -m slow $(PYTEST_ARGS)
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench_mesh.py
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml | llvm
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PIP) install --upgrade pip setuptools wheel 2>&1 | grep -v "is ignored" || true
+	$(PIP) install "$(TORCH)" 2>&1 | grep -v "is ignored" || true
+	$(PIP) install -e ".[test]" 2>&1 | grep -v "is ignored" || true
+	$(PY) -c "import torch, mitsuba, pytetwild, trimesh, manifold3d, meshio, pydantic, colour, cv2, kornia, skfem; assert torch.__version__.startswith('2.13.0'), torch.__version__"
+	touch $(STAMP)
+
+# Mitsuba's CPU (llvm_*) variants need libLLVM 17 or newer: 14-16 are too old or crash inside the
+# path tracer ("Cannot select ... fminimum"). Install it when we can (root), else say what to do.
+LLVM_OK = ldconfig -p 2>/dev/null | grep -qE 'libLLVM(-|\.so\.)(1[7-9]|[2-9][0-9])'
+llvm:
+	@if [ -n "$$DRJIT_LIBLLVM_PATH" ] || $(LLVM_OK); then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+		echo "libLLVM >= 17 not found: installing libllvm19 (Mitsuba's CPU variants need it)"; \
+		(apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null) \
+		  || { echo "error: 'apt-get install -y libllvm19' failed; install libLLVM 17+ by hand or set DRJIT_LIBLLVM_PATH"; exit 1; }; \
+		$(LLVM_OK) || { echo "error: libllvm19 installed but not visible to ldconfig; set DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so.19"; exit 1; }; \
+	else \
+		echo "error: Mitsuba's CPU variants need libLLVM 17 or newer and none was found."; \
+		echo "       Install it as root: 'apt-get install -y libllvm19' (Debian/Ubuntu),"; \
+		echo "       or point DRJIT_LIBLLVM_PATH at an existing libLLVM.so (17+)."; \
+		exit 1; \
+	fi
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

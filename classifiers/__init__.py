@@ -1,0 +1,1 @@
+"""classifiers package (filled by later issues)."""

@@ -1,0 +1,1 @@
+"""dllm package (filled by later issues)."""

@@ -1,0 +1,209 @@
+"""Command line: ``mlsim run | check | mesh``.
+
+Exit codes: 0 success, 2 bad input (an invalid scene or argument; the message names the field),
+1 failure (a stage could not finish; the message says what to try). Unexpected errors are bugs:
+they print a traceback and exit 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tomllib
+from pathlib import Path
+
+from mlsim.errors import MlsimError, Problem, SceneError
+
+EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+
+_UNITS = (
+    ("_kg_m3", "kg/m^3"),
+    ("_mm_s", "mm/s"),
+    ("_deg_s", "deg/s"),
+    ("_mm2", "mm^2"),
+    ("_wt_pct", "wt%"),
+    ("_mm", "mm"),
+    ("_um", "um"),
+    ("_ms", "ms"),
+    ("_pa", "Pa"),
+    ("_deg", "deg"),
+    ("_px", "px"),
+    ("_db", "dB"),
+    ("_n", "N"),
+    ("_w", "W"),
+    ("_m", "m"),
+    ("_s", "s"),
+)
+
+
+def _unit(path: str) -> str:
+    leaf = path.rsplit(".", 1)[-1].split("[")[0]
+    for suffix, unit in _UNITS:
+        if leaf.endswith(suffix):
+            return unit
+    return ""
+
+
+def _parse_sets(items: list[str] | None) -> dict:
+    """``--set sensor.rod.height_mm=12`` -> {"sensor.rod.height_mm": 12} (values parsed as TOML)."""
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise SceneError([Problem("--set", item, "expected DOTTED.PATH=VALUE, e.g. sensor.rod.height_mm=12")])
+        key, _, raw = item.partition("=")
+        try:
+            value = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw  # a bare word: a string (e.g. fidelity.solve.tier=linear)
+        out[key.strip()] = value
+    return out
+
+
+def _load(args):
+    from mlsim.scene import load_scene
+
+    return load_scene(args.scene, overrides=_parse_sets(args.set))
+
+
+def _cache(args):
+    from mlsim.pipeline import Cache
+
+    return Cache(args.cache) if args.cache else Cache()
+
+
+def _outputs(args, scene):
+    if not args.outputs:
+        return None
+    from mlsim.pipeline import OUTPUTS
+
+    names = tuple(o.strip() for part in args.outputs for o in part.split(",") if o.strip())
+    bad = [n for n in names if n not in OUTPUTS]
+    if bad:
+        raise SceneError([Problem("--outputs", ",".join(bad), f"unknown output; choose from: {', '.join(OUTPUTS)}")])
+    return names
+
+
+def cmd_check(args) -> int:
+    scene = _load(args)
+    from fem.geometry import RodArray
+
+    print(f"# {args.scene}: valid scene '{scene.name}' (hash {scene.content_hash()[:12]})")
+    flat = scene.to_dotted()
+    width = max(len(k) for k in flat)
+    for key, value in flat.items():
+        unit = _unit(key)
+        print(f"{key:<{width}} = {value!r:<24} {unit}".rstrip())
+    g = RodArray.from_sensor(scene.sensor)
+    print("\n# derived")
+    print(f"rods                     = {g.n_rods} ({scene.sensor.rows} x {scene.sensor.cols})")
+    print(f"pitch                    = {g.pitch_x_m * 1e3:.4g} x {g.pitch_y_m * 1e3:.4g} mm")
+    print(f"surface                  = {g.size_x_m * 1e3:.4g} x {g.size_y_m * 1e3:.4g} mm")
+    print(f"body volume              = {g.volume_m3() * 1e9:.1f} mm^3")
+    for name, vol in g.layer_volumes_m3().items():
+        print(f"{name + ' volume':<24} = {vol * 1e9:.1f} mm^3")
+    print(f"ML inner (emitting) area = {g.sheet_area_m2(g.core_depth_m) * 1e6:.1f} mm^2")
+    if scene.load is not None:
+        frames = scene.load.duration_s * scene.camera.fps
+        print(f"load duration            = {scene.load.duration_s:.4g} s ({frames:.0f} frames at {scene.camera.fps:g} FPS)")
+    print("\n# materials")
+    for region in ("core", "ml_layer", "absorber"):
+        m = scene.material(region)
+        print(f"{region:<9} {m.name}: E = {m.young_modulus_pa.value:.4g} Pa [{m.young_modulus_pa.source}]; "
+              f"nu = {m.poisson_ratio.value} [{m.poisson_ratio.source}]; "
+              f"density = {m.density_kg_m3.value} kg/m^3 [{m.density_kg_m3.source}]")
+    return EXIT_OK
+
+
+def cmd_run(args, outputs=None) -> int:
+    from mlsim import pipeline
+
+    scene = _load(args)
+    outputs = outputs or _outputs(args, scene)
+    cache = _cache(args)
+    if args.dry_run:
+        steps = pipeline.plan(scene, cache, outputs)
+        print(f"plan for {args.scene} (cache: {cache.root}):")
+        for s in steps:
+            what = "cached  " if s.action == "load" else "to run  "
+            mark = "*" if s.requested else " "
+            print(f"  {mark} {s.stage.name:<10} {what} key {s.key[:12]}  reads {', '.join(s.stage.reads)}")
+        print("  (* = requested output)")
+        return EXIT_OK
+    out_dir = Path(args.out) if args.out else Path("out") / scene.name
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    result = pipeline.run(scene, out_dir, cache, outputs, progress=not args.quiet, log=log, scene_path=str(args.scene))
+    if not args.quiet:
+        for name, files in result.files.items():
+            for f in files:
+                print(f"wrote {f}")
+    return EXIT_OK
+
+
+def cmd_mesh(args) -> int:
+    code = cmd_run(args, outputs=("mesh",))
+    if code == EXIT_OK and not args.dry_run and not args.quiet:
+        import json
+
+        out_dir = Path(args.out) if args.out else Path("out") / _load(args).name
+        summary = json.loads((out_dir / "summary.json").read_text())
+        m = summary["stages"]["mesh"]["summary"]
+        q = m["quality"]
+        print(f"mesh {m['mesh_hash'][:12]}: {m['n_tets']} tets, {m['n_points']} vertices ({m['n_nodes_quadratic']} quadratic nodes)")
+        print(f"  dihedral angles {q['min_dihedral_deg']:.1f}-{q['max_dihedral_deg']:.1f} deg, "
+              f"{q['slivers']} slivers (< {q['sliver_threshold_deg']:g} deg), min volume {q['min_volume_m3'] * 1e9:.3g} mm^3")
+        print(f"  volume error {100 * m['volume_rel_error']:+.3f} %; layers "
+              + ", ".join(f"{k} {100 * v:+.2f} %" for k, v in m["layer_volume_rel_error"].items()))
+    return code
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mlsim", description="Simulate the mechanoluminescent visuotactile sensor.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def common(p, outputs: bool = True):
+        p.add_argument("scene", help="scene file (TOML), e.g. scenes/mavig_default.toml")
+        p.add_argument("--set", action="append", metavar="PATH=VALUE", help="override a scene field, e.g. sensor.rod.height_mm=12")
+        p.add_argument("--quiet", action="store_true", help="no progress bars or log lines")
+
+    p = sub.add_parser("run", help="run the stages the scene's outputs need")
+    common(p)
+    p.add_argument("--out", help="output directory (default out/<scene name>)")
+    p.add_argument("--outputs", action="append", help="products to write instead of the scene's (comma-separated)")
+    p.add_argument("--dry-run", action="store_true", help="print the plan and what is cached; run nothing")
+    p.add_argument("--cache", help="cache directory (default $MLSIM_CACHE_DIR or ~/.cache/mlsim)")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("check", help="validate a scene and print it resolved, with units")
+    common(p)
+    p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser("mesh", help="build the tet mesh, report its quality, write VTU")
+    common(p)
+    p.add_argument("--out", help="output directory (default out/<scene name>)")
+    p.add_argument("--cache", help="cache directory")
+    p.add_argument("--dry-run", action="store_true", help="print the plan only")
+    p.set_defaults(func=cmd_mesh)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse exits 2 on bad arguments, which matches our convention
+        return int(exc.code or 0)
+    try:
+        return args.func(args)
+    except SceneError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except MlsimError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    except KeyboardInterrupt:
+        print("interrupted: finished stages are cached; rerun to resume", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

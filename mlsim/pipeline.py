@@ -1,0 +1,363 @@
+"""The planner: stages, their inputs and outputs, a minimal plan per scene, and a content-hash cache.
+
+Each stage declares the dotted scene fields it ``reads`` and the stages it ``needs``. Its cache key
+is the SHA-256 of its name, its version, exactly those fields' values and the keys of the stages it
+needs; so changing ``camera.gain_db`` leaves the mesh's key, and the cached mesh, untouched.
+
+:func:`plan` returns the stages a scene's ``outputs`` require, in order, each with an action:
+
+- ``load``: its result is in the cache (the stages it needs are then not required for it);
+- ``run``: it must be computed (the stages it needs are then required);
+- a stage whose result nobody needs does not appear at all.
+
+Stage code imports its heavy dependencies inside its functions, so a run imports only what its
+plan touches: a scene that asks for the mesh never imports Mitsuba.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from mlsim.scene import Scene
+
+__all__ = ["Stage", "STAGES", "OUTPUTS", "PlanStep", "Cache", "plan", "run", "stage_key", "default_cache_dir", "invalidated"]
+
+# Scene fields that shape the rod array's geometry (shared by geometry and mesh).
+_GEOMETRY_FIELDS = (
+    "sensor.rows",
+    "sensor.cols",
+    "sensor.surface_size_mm",
+    "sensor.pitch_mm",
+    "sensor.rod",
+    "sensor.base",
+    "sensor.layers",
+)
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One step of the flow of data.
+
+    run(scene, inputs, ctx) -> result, where inputs maps each needed stage's name to its result.
+    save(result, dir) / load(dir) -> result: how the result is cached (None: never cached, for cheap
+    stages). write(result, out_dir, ctx) -> list of files: the user-facing output when requested.
+    summarize(result) -> dict: what goes into the run's JSON summary.
+    """
+
+    name: str
+    doc: str
+    reads: tuple[str, ...]
+    needs: tuple[str, ...]
+    run: Callable[..., Any]
+    version: str = "1"
+    save: Callable[[Any, Path], None] | None = None
+    load: Callable[[Path], Any] | None = None
+    write: Callable[..., list[Path]] | None = None
+    summarize: Callable[[Any], dict] | None = None
+
+
+# ----------------------------------------------------------------------------------- the stages
+def _geometry_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from fem.geometry import RodArray
+
+    return RodArray.from_sensor(scene.sensor)
+
+
+def _geometry_write(g, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from fem.geometry import emitting_surface, solid_below_depth
+
+    segments = ctx.scene.fidelity.mesh.segments_per_circle
+    surfaces = {
+        "surface_outer.ply": solid_below_depth(g, 0.0, segments),
+        "surface_ml_outer.ply": solid_below_depth(g, g.absorber_m, segments),
+        "surface_ml_inner_emitting.ply": emitting_surface(g, segments),
+    }
+    files = []
+    for name, mesh in surfaces.items():
+        path = out_dir / name
+        _atomic_bytes(path, mesh.export(file_type="ply"))
+        files.append(path)
+    return files
+
+
+def _geometry_summary(g) -> dict:
+    return {
+        "n_rods": g.n_rods,
+        "pitch_mm": [g.pitch_x_m * 1e3, g.pitch_y_m * 1e3],
+        "surface_mm": [g.size_x_m * 1e3, g.size_y_m * 1e3],
+        "volume_mm3": g.volume_m3() * 1e9,
+        "layer_volume_mm3": {k: v * 1e9 for k, v in g.layer_volumes_m3().items()},
+        "ml_inner_area_mm2": g.sheet_area_m2(g.core_depth_m) * 1e6,
+    }
+
+
+def _mesh_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from fem.mesh import MeshParams, build_mesh
+
+    return build_mesh(inputs["geometry"], MeshParams.from_fidelity(scene.fidelity.mesh), progress=ctx.progress)
+
+
+def _mesh_save(result, directory: Path) -> None:
+    mesh, report = result
+    mesh.save(directory / "mesh.npz")
+    (directory / "report.json").write_text(json.dumps(report, indent=2))
+
+
+def _mesh_load(directory: Path):
+    from fem.mesh import TetMesh
+
+    return TetMesh.load(directory / "mesh.npz"), json.loads((directory / "report.json").read_text())
+
+
+def _mesh_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from fem.mesh import write_vtu
+
+    mesh, report = result
+    vtu = out_dir / "mesh.vtu"
+    write_vtu(mesh, vtu)
+    rep = out_dir / "mesh_report.json"
+    _atomic_bytes(rep, json.dumps(report, indent=2).encode())
+    return [vtu, rep]
+
+
+def _mesh_summary(result) -> dict:
+    _, report = result
+    keys = ("mesh_hash", "n_tets", "n_points", "n_nodes_quadratic", "volume_rel_error", "layer_volume_rel_error", "face_area_rel_error", "quality", "attempts")
+    return {k: report[k] for k in keys if k in report}
+
+
+_STAGE_LIST = [
+    Stage(
+        name="geometry",
+        doc="parametric rod array; writes the outer surface and the layer surfaces (PLY)",
+        reads=_GEOMETRY_FIELDS,
+        needs=(),
+        run=_geometry_run,
+        write=_geometry_write,
+        summarize=_geometry_summary,
+    ),
+    Stage(
+        name="mesh",
+        doc="labelled quadratic tet mesh (fTetWild), layer fractions, tagged faces; writes VTU",
+        # timeout_s and retries change how hard we try, not what an accepted mesh is.
+        reads=_GEOMETRY_FIELDS
+        + (
+            "fidelity.mesh.edge_length_mm",
+            "fidelity.mesh.envelope_mm",
+            "fidelity.mesh.coarsen",
+            "fidelity.mesh.segments_per_circle",
+            "fidelity.mesh.fraction_levels",
+        ),
+        needs=("geometry",),
+        run=_mesh_run,
+        version="1",
+        save=_mesh_save,
+        load=_mesh_load,
+        write=_mesh_write,
+        summarize=_mesh_summary,
+    ),
+]
+
+#: The registered stages, in an order where every stage follows the stages it needs.
+STAGES: dict[str, Stage] = {s.name: s for s in _STAGE_LIST}
+#: What a scene may list in ``outputs``.
+OUTPUTS: tuple[str, ...] = tuple(s.name for s in _STAGE_LIST if s.write is not None)
+
+
+# ------------------------------------------------------------------------------------ the cache
+def default_cache_dir() -> Path:
+    """``$MLSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/mlsim``, else ``~/.cache/mlsim``."""
+    if os.environ.get("MLSIM_CACHE_DIR"):
+        return Path(os.environ["MLSIM_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "mlsim"
+
+
+class Cache:
+    """Stage results on disk, one directory per (stage, key), written atomically (rename)."""
+
+    def __init__(self, root: str | Path | None = None):
+        self.root = Path(root) if root is not None else default_cache_dir()
+
+    def path(self, stage: str, key: str) -> Path:
+        return self.root / stage / key
+
+    def has(self, stage: str, key: str) -> bool:
+        return (self.path(stage, key) / "COMPLETE").is_file()
+
+    def store(self, stage: Stage, key: str, result) -> None:
+        final = self.path(stage.name, key)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{key[:12]}.", dir=final.parent))
+        try:
+            stage.save(result, tmp)
+            (tmp / "COMPLETE").write_text(key)
+            if final.exists():
+                shutil.rmtree(final)
+            os.replace(tmp, final)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+
+    def fetch(self, stage: Stage, key: str):
+        return stage.load(self.path(stage.name, key))
+
+
+# ---------------------------------------------------------------------------------- the planner
+def stage_key(scene: Scene, name: str, _memo: dict | None = None) -> str:
+    """Content hash of what a stage's result depends on: its code version, the scene fields it
+    reads and, recursively, the keys of the stages it needs."""
+    import hashlib
+
+    memo = {} if _memo is None else _memo
+    if name in memo:
+        return memo[name]
+    stage = STAGES[name]
+    payload = {
+        "stage": name,
+        "version": stage.version,
+        "reads": scene.content_hash(stage.reads),
+        "needs": {n: stage_key(scene, n, memo) for n in stage.needs},
+    }
+    memo[name] = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+    return memo[name]
+
+
+@dataclass
+class PlanStep:
+    stage: Stage
+    key: str
+    action: str  # "run" or "load"
+    requested: bool
+
+
+def plan(scene: Scene, cache: Cache | None = None, outputs: tuple[str, ...] | None = None) -> list[PlanStep]:
+    """The minimal ordered list of stages that produce ``outputs`` (default: the scene's)."""
+    outputs = tuple(scene.outputs if outputs is None else outputs)
+    for name in outputs:
+        if name not in STAGES:
+            raise KeyError(f"unknown output {name!r}; choose from: {', '.join(OUTPUTS)}")
+    memo: dict = {}
+    actions: dict[str, str] = {}
+
+    def require(name: str) -> None:
+        if name in actions:
+            return
+        key = stage_key(scene, name, memo)
+        stage = STAGES[name]
+        if cache is not None and stage.save is not None and cache.has(name, key):
+            actions[name] = "load"
+        else:
+            actions[name] = "run"
+            for need in stage.needs:
+                require(need)
+
+    for name in outputs:
+        require(name)
+    return [PlanStep(STAGES[n], stage_key(scene, n, memo), actions[n], n in outputs) for n in STAGES if n in actions]
+
+
+def invalidated(old: Scene, new: Scene) -> list[str]:
+    """Names of the stages whose results differ between two scenes (e.g. after ``with_values``)."""
+    return [n for n in STAGES if stage_key(old, n) != stage_key(new, n)]
+
+
+# ---------------------------------------------------------------------------------- the runner
+@dataclass
+class RunContext:
+    scene: Scene
+    cache: Cache
+    out_dir: Path | None
+    progress: bool = True
+    log: Callable[[str], None] = print
+
+
+@dataclass
+class RunResult:
+    steps: list[PlanStep]
+    results: dict[str, Any]
+    seconds: dict[str, float]
+    files: dict[str, list[Path]] = field(default_factory=dict)
+    summary: dict = field(default_factory=dict)
+
+
+def run(scene: Scene, out_dir: str | Path | None = None, cache: Cache | None = None, outputs: tuple[str, ...] | None = None,
+        progress: bool = True, log: Callable[[str], None] = print, scene_path: str | None = None) -> RunResult:
+    """Execute the plan: load cached results, run the rest (caching them), write requested outputs
+    and a JSON summary to ``out_dir`` (nothing is written when it is None)."""
+    cache = cache if cache is not None else Cache()
+    steps = plan(scene, cache, outputs)
+    out = Path(out_dir) if out_dir is not None else None
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    ctx = RunContext(scene, cache, out, progress, log)
+    results: dict[str, Any] = {}
+    seconds: dict[str, float] = {}
+    files: dict[str, list[Path]] = {}
+    for step in steps:
+        st = step.stage
+        t0 = time.perf_counter()
+        if step.action == "load":
+            results[st.name] = cache.fetch(st, step.key)
+        else:
+            log(f"[{st.name}] running")
+            results[st.name] = st.run(scene, {n: results[n] for n in st.needs}, ctx)
+            if st.save is not None:
+                cache.store(st, step.key, results[st.name])
+        seconds[st.name] = time.perf_counter() - t0
+        if step.requested and out is not None and st.write is not None:
+            files[st.name] = st.write(results[st.name], out, ctx)
+        log(f"[{st.name}] {'loaded from cache' if step.action == 'load' else 'done'} in {seconds[st.name]:.2f} s")
+    result = RunResult(steps, results, seconds, files)
+    result.summary = _summary(scene, steps, results, seconds, files, scene_path)
+    if out is not None:
+        path = out / "summary.json"
+        _atomic_bytes(path, json.dumps(result.summary, indent=2, default=str).encode())
+        files["summary"] = [path]
+    return result
+
+
+def _summary(scene, steps, results, seconds, files, scene_path) -> dict:
+    import mlsim
+
+    return {
+        "mlsim_version": mlsim.__version__,
+        "scene": {"name": scene.name, "path": scene_path, "hash": scene.content_hash(), "seed": scene.seed},
+        "outputs": {k: [p.name for p in v] for k, v in files.items()},
+        "stages": {
+            s.stage.name: {
+                "key": s.key,
+                "action": s.action,
+                "seconds": seconds[s.stage.name],
+                **({"summary": s.stage.summarize(results[s.stage.name])} if s.stage.summarize else {}),
+            }
+            for s in steps
+        },
+        "versions": _versions(),
+    }
+
+
+def _versions() -> dict:
+    import platform
+    from importlib import metadata
+
+    out = {"python": platform.python_version()}
+    for pkg in ("numpy", "scipy", "pydantic", "trimesh", "manifold3d", "pytetwild", "meshio"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def _atomic_bytes(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.part")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)

@@ -1,0 +1,722 @@
+"""The scene: one typed, frozen, validated description of a simulation run.
+
+A scene is written in TOML (see ``scenes/``) and loaded with :func:`load_scene`. Every field
+carries its unit in its name (``height_mm``, ``speed_mm_s``); unknown keys, wrong types, NaN or
+infinite numbers and inconsistent values are rejected at the door with a :class:`SceneError`
+whose lines name the dotted path, the value received and what would be valid::
+
+    sensor.rod.diameter_mm = -5.0: must be > 0
+
+Deep code never re-validates and never reads raw dicts: it receives a :class:`Scene`.
+For sweeps, :meth:`Scene.with_values` returns a new scene with some dotted fields changed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
+
+from mlsim.errors import Problem, SceneError
+from mlsim.materials import MATERIAL_PROPERTIES, SHIPPED_MATERIALS, Material
+
+__all__ = [
+    "Scene",
+    "SceneError",
+    "load_scene",
+    "scene_from_dict",
+    "DEFAULT_SURFACE_SIZE_MM",
+]
+
+DEFAULT_SURFACE_SIZE_MM = 36.0  # SPEC 1.1: sensing surface 36 mm x 36 mm
+
+# Strict scalar types: TOML gives ints and floats; a bool is not a number and a string "3" is not 3.
+Float = Annotated[float, Strict()]
+Int = Annotated[int, Strict()]
+Bool = Annotated[bool, Strict()]
+Pos = Annotated[float, Strict(), Field(gt=0)]
+NonNeg = Annotated[float, Strict(), Field(ge=0)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+# --------------------------------------------------------------------------------------- sensor
+class RodSpec(_Model):
+    """One rod of the array (all rods are equal)."""
+
+    diameter_mm: Pos = 5.0  # SPEC 1.1
+    height_mm: Pos = 9.0  # SPEC 1.1
+
+
+class BaseSpec(_Model):
+    """The slab of elastomer the rods stand on."""
+
+    thickness_mm: Pos = 2.0  # SPEC 1.1: not given, default 2 mm
+
+
+class LayerSpec(_Model):
+    """Layers over the top surface (rod tips, rod sides, top of the base), outside in."""
+
+    absorber_mm: NonNeg = 0.3  # SPEC 1.1: light-absorbing layer, about 0.3 mm
+    ml_mm: Pos = 0.5  # SPEC 1.1: not given, default 0.5 mm
+
+
+class MaterialChoice(_Model):
+    """Material of each region, by name in the materials table."""
+
+    core: str = "SC37"
+    ml_layer: str = "SC37"
+    absorber: str = "SC37"
+
+
+class PhosphorSpec(_Model):
+    """ZnS:Cu phosphor in the ML layer."""
+
+    loading_wt_pct: Annotated[float, Strict(), Field(ge=20, le=60)] = 60.0  # SPEC 1.2 measured range
+    particle_size_um: Pos = 30.0  # SPEC 1.1
+
+
+class SensorSpec(_Model):
+    """The rod array, its base and layers (SPEC 1.1).
+
+    Give either ``surface_size_mm`` (a square surface; each rod centred in its cell, so the pitch
+    is the size over the count) or ``pitch_mm`` (then the surface is the pitch times the count).
+    """
+
+    rows: Annotated[int, Strict(), Field(ge=1, le=64)] = 5
+    cols: Annotated[int, Strict(), Field(ge=1, le=64)] = 5
+    surface_size_mm: Pos | None = None
+    pitch_mm: Pos | None = None
+    shell_height_mm: Pos = 65.0  # SPEC 1.1: bench version (the robot version is 50 mm)
+    rod: RodSpec = RodSpec()
+    base: BaseSpec = BaseSpec()
+    layers: LayerSpec = LayerSpec()
+    materials: MaterialChoice = MaterialChoice()
+    phosphor: PhosphorSpec = PhosphorSpec()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_surface(cls, data: Any) -> Any:
+        if isinstance(data, dict) and data.get("surface_size_mm") is None and data.get("pitch_mm") is None:
+            data = {**data, "surface_size_mm": DEFAULT_SURFACE_SIZE_MM}
+        return data
+
+    @property
+    def pitch_x_mm(self) -> float:
+        return self.pitch_mm if self.pitch_mm is not None else self.surface_size_mm / self.cols
+
+    @property
+    def pitch_y_mm(self) -> float:
+        return self.pitch_mm if self.pitch_mm is not None else self.surface_size_mm / self.rows
+
+    @property
+    def size_x_mm(self) -> float:
+        return self.pitch_x_mm * self.cols
+
+    @property
+    def size_y_mm(self) -> float:
+        return self.pitch_y_mm * self.rows
+
+    @property
+    def n_rods(self) -> int:
+        return self.rows * self.cols
+
+
+class MaterialOverride(_Model):
+    """A scene's change to a shipped material, or a new material (then E, nu and density are needed)."""
+
+    description: str | None = None
+    young_modulus_pa: Pos | None = None
+    poisson_ratio: Annotated[float, Strict(), Field(gt=-1.0, lt=0.5)] | None = None
+    density_kg_m3: Pos | None = None
+    tensile_strength_pa: Pos | None = None
+    elongation_at_break: Pos | None = None
+    relative_ml_peak: NonNeg | None = None
+
+
+# ----------------------------------------------------------------------------------------- load
+class _Indenter(_Model):
+    yaw_deg: Float = 0.0  # rotation of the indenter about the vertical axis at the start
+
+
+class FlatIndenter(_Indenter):
+    """A flat circular punch (SPEC 1.5 swipe probe: 5 cm^2 tip). Give the diameter or the tip area."""
+
+    shape: Literal["flat"]
+    diameter_mm: Pos | None = None
+    tip_area_mm2: Pos | None = None
+    height_mm: Pos = 10.0
+
+    @model_validator(mode="after")
+    def _one_size(self):
+        if (self.diameter_mm is None) == (self.tip_area_mm2 is None):
+            raise ValueError("give exactly one of diameter_mm or tip_area_mm2")
+        return self
+
+    @property
+    def tip_diameter_mm(self) -> float:
+        if self.diameter_mm is not None:
+            return self.diameter_mm
+        return 2.0 * math.sqrt(self.tip_area_mm2 / math.pi)
+
+
+class CylinderIndenter(_Indenter):
+    """A cylinder lying across the rods (e.g. the M8 screw, 7.7 mm x 160 mm); axis along x at yaw 0."""
+
+    shape: Literal["cylinder"]
+    diameter_mm: Pos
+    length_mm: Pos
+
+
+class SphereIndenter(_Indenter):
+    shape: Literal["sphere"]
+    diameter_mm: Pos
+
+
+class BoxIndenter(_Indenter):
+    shape: Literal["box"]
+    size_mm: tuple[Pos, Pos, Pos]
+
+
+Indenter = Annotated[
+    Union[FlatIndenter, CylinderIndenter, SphereIndenter, BoxIndenter], Field(discriminator="shape")
+]
+
+
+class PressSegment(_Model):
+    """Move the indenter down: by ``depth_mm`` (at ``speed_mm_s`` or over ``duration_s``), or ramp
+    the normal force to ``force_n`` over ``duration_s``."""
+
+    kind: Literal["press"]
+    depth_mm: Pos | None = None
+    force_n: Pos | None = None
+    speed_mm_s: Pos | None = None
+    duration_s: Pos | None = None
+
+    @model_validator(mode="after")
+    def _control(self):
+        if (self.depth_mm is None) == (self.force_n is None):
+            raise ValueError("give exactly one of depth_mm (displacement control) or force_n (force control)")
+        if self.depth_mm is not None and (self.speed_mm_s is None) == (self.duration_s is None):
+            raise ValueError("with depth_mm give exactly one of speed_mm_s or duration_s")
+        if self.force_n is not None and (self.duration_s is None or self.speed_mm_s is not None):
+            raise ValueError("with force_n give duration_s (the ramp time) and no speed_mm_s")
+        return self
+
+    @property
+    def seconds(self) -> float:
+        return self.duration_s if self.duration_s is not None else self.depth_mm / self.speed_mm_s
+
+
+class SlideSegment(_Model):
+    """Move the indenter sideways, keeping its depth, along ``direction_deg`` (0 = +x, 90 = +y)."""
+
+    kind: Literal["slide"]
+    distance_mm: Pos
+    speed_mm_s: Pos
+    direction_deg: Float = 0.0
+
+    @property
+    def seconds(self) -> float:
+        return self.distance_mm / self.speed_mm_s
+
+
+class RotateSegment(_Model):
+    """Turn the indenter about the vertical axis by ``angle_deg`` (positive = anticlockwise from above)."""
+
+    kind: Literal["rotate"]
+    angle_deg: Float
+    rate_deg_s: Pos
+
+    @model_validator(mode="after")
+    def _nonzero(self):
+        if self.angle_deg == 0:
+            raise ValueError("angle_deg must be non-zero")
+        return self
+
+    @property
+    def seconds(self) -> float:
+        return abs(self.angle_deg) / self.rate_deg_s
+
+
+class HoldSegment(_Model):
+    kind: Literal["hold"]
+    duration_s: Pos
+
+    @property
+    def seconds(self) -> float:
+        return self.duration_s
+
+
+class ReleaseSegment(_Model):
+    """Move the indenter up by ``distance_mm``."""
+
+    kind: Literal["release"]
+    distance_mm: Pos
+    speed_mm_s: Pos
+
+    @property
+    def seconds(self) -> float:
+        return self.distance_mm / self.speed_mm_s
+
+
+Segment = Annotated[
+    Union[PressSegment, SlideSegment, RotateSegment, HoldSegment, ReleaseSegment],
+    Field(discriminator="kind"),
+]
+SEGMENT_KINDS = ("press", "slide", "rotate", "hold", "release")
+INDENTER_SHAPES = ("flat", "cylinder", "sphere", "box")
+
+
+class LoadSpec(_Model):
+    """A rigid indenter moved along timed segments, starting above the rod tips."""
+
+    indenter: Indenter
+    start_xy_mm: tuple[Float, Float] = (0.0, 0.0)
+    start_gap_mm: NonNeg = 0.5  # gap between the indenter's lowest point and the rod tips
+    friction_coefficient: NonNeg = 0.8  # not given; silicone on steel is about 0.5-1.0
+    segments: Annotated[tuple[Segment, ...], Field(min_length=1)]
+
+    @property
+    def duration_s(self) -> float:
+        return sum(s.seconds for s in self.segments)
+
+
+# ------------------------------------------------------------------------------ optics and camera
+ABSORBERS = ("black_silicone_pigment", "uv_opaque_colorant", "carbon_nanotubes", "water_based_ink", "none")
+
+
+class OpticsSpec(_Model):
+    elastomer_refractive_index: Annotated[float, Strict(), Field(ge=1.0, le=3.0)] = 1.41
+    acrylic_thickness_mm: Pos = 3.0  # SPEC 1.1: not given, default 3 mm
+    acrylic_refractive_index: Annotated[float, Strict(), Field(ge=1.0, le=3.0)] = 1.49  # SPEC 1.1
+    absorber: Literal[ABSORBERS] = "black_silicone_pigment"  # SPEC 1.3
+
+
+class CameraSpec(_Model):
+    """Colour CMOS under the sensor, looking up (SPEC 1.1: IMX415-class, 30 FPS, 350 x 350 crop)."""
+
+    fps: Annotated[float, Strict(), Field(gt=0, le=10000)] = 30.0
+    width_px: Annotated[int, Strict(), Field(ge=8, le=8192)] = 350
+    height_px: Annotated[int, Strict(), Field(ge=8, le=8192)] = 350
+    distance_mm: Pos = 40.0  # lens to the acrylic's bottom face; not given
+    fov_deg: Annotated[float, Strict(), Field(gt=0, lt=180)] = 55.0  # not given; sees the 36 mm surface
+    exposure_ms: Pos = 33.0
+    gain_db: NonNeg = 0.0
+
+
+class AmbientSpec(_Model):
+    """Ambient lamp above the sensor (SPEC 1.1: 50 W daylight lamps 1.5 m above)."""
+
+    lamp: Literal["none", "daylight", "white_led"] = "none"
+    power_w: NonNeg = 50.0
+    height_m: Pos = 1.5
+
+
+class DllmSpec(_Model):
+    """Detector thresholds (SPEC 1.6); alpha and beta are not given: defaults to be tuned by the ambient study."""
+
+    alpha: Pos = 1.05
+    beta: Pos = 1.3
+    init_s: Pos = 1.0  # SPEC 1.6: 1 s of frames
+    blur_sigma_px: Pos = 2.0
+
+
+# ------------------------------------------------------------------------------------- fidelity
+class MeshFidelity(_Model):
+    """Tetrahedral meshing (fTetWild via pytetwild).
+
+    ``edge_length_mm`` is the target edge length. ``envelope_mm`` is how far the tet surface may
+    stray from the exact surface before boundary nodes are snapped back onto it; by default it
+    follows the edge length (edge / 40), so one knob trades accuracy for cost.
+    """
+
+    edge_length_mm: Pos = 2.0
+    envelope_mm: Pos | None = None
+    coarsen: Bool = True
+    segments_per_circle: Annotated[int, Strict(), Field(ge=12, le=512)] = 48
+    fraction_levels: Annotated[int, Strict(), Field(ge=1, le=4)] = 3
+    timeout_s: Pos = 240.0
+    retries: Annotated[int, Strict(), Field(ge=0, le=10)] = 3
+
+    @property
+    def resolved_envelope_mm(self) -> float:
+        return self.envelope_mm if self.envelope_mm is not None else self.edge_length_mm / 40.0
+
+
+class SolveFidelity(_Model):
+    tier: Literal["reduced", "linear", "nonlinear"] = "linear"
+    element_order: Literal[1, 2] = 2
+    substeps: Annotated[int, Strict(), Field(ge=1, le=1000)] = 1
+
+
+class RenderFidelity(_Model):
+    tier: Literal["transport", "path"] = "transport"
+    spp: Annotated[int, Strict(), Field(ge=1, le=65536)] = 16
+
+
+class FidelitySpec(_Model):
+    mesh: MeshFidelity = MeshFidelity()
+    solve: SolveFidelity = SolveFidelity()
+    render: RenderFidelity = RenderFidelity()
+
+
+# ---------------------------------------------------------------------------------------- scene
+class Scene(_Model):
+    """A whole run: the sensor, its load, optics, camera, ambient light, detector, fidelity, outputs.
+
+    Frozen: use :meth:`with_values` to derive a changed scene.
+    """
+
+    name: str = "unnamed"
+    description: str = ""
+    seed: Annotated[int, Strict(), Field(ge=0, lt=2**63)] = 0
+    sensor: SensorSpec = SensorSpec()
+    materials: dict[str, MaterialOverride] = {}
+    load: LoadSpec | None = None
+    optics: OpticsSpec = OpticsSpec()
+    camera: CameraSpec = CameraSpec()
+    ambient: AmbientSpec = AmbientSpec()
+    dllm: DllmSpec = DllmSpec()
+    fidelity: FidelitySpec = FidelitySpec()
+    outputs: tuple[str, ...] = ("mesh",)
+
+    # -- access ---------------------------------------------------------------------------------
+    def get(self, path: str):
+        """The value at a dotted path, e.g. ``scene.get("sensor.rod.height_mm")``."""
+        node: Any = self
+        for part in _split_path(path):
+            if isinstance(part, int):
+                node = node[part]
+            elif isinstance(node, dict):
+                node = node[part]
+            else:
+                if part not in type(node).model_fields:
+                    raise KeyError(f"{path}: no field {part!r} in {type(node).__name__}")
+                node = getattr(node, part)
+        return node
+
+    def with_values(self, values: dict[str, Any]) -> "Scene":
+        """A new scene with the given dotted fields changed, validated like a loaded one.
+
+        >>> scene.with_values({"sensor.rod.height_mm": 12.0})
+        """
+        data = self.model_dump(mode="python", exclude_none=True)
+        for path, value in values.items():
+            _set_path(data, _split_path(path), value, path)
+        return scene_from_dict(data, source="with_values")
+
+    def material(self, region: str) -> Material:
+        """The resolved material of a region (``core``, ``ml_layer``, ``absorber``)."""
+        return resolve_material(getattr(self.sensor.materials, region), self.materials)
+
+    def content_hash(self, paths: tuple[str, ...] | None = None) -> str:
+        """SHA-256 of the canonical JSON of the whole scene, or of the given dotted fields only."""
+        if paths is None:
+            payload = self.model_dump(mode="json")
+        else:
+            payload = {p: _jsonable(self.get(p)) for p in sorted(paths)}
+        return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+    def to_dotted(self) -> dict[str, Any]:
+        """Every leaf field as ``{"sensor.rod.height_mm": 9.0, ...}`` (for printing and sweeps)."""
+        out: dict[str, Any] = {}
+        _flatten(self.model_dump(mode="json"), "", out)
+        return out
+
+
+def resolve_material(name: str, overrides: dict[str, MaterialOverride]) -> Material:
+    """A shipped material with a scene's overrides applied, or a material the scene defines."""
+    values = overrides[name].model_dump(exclude={"description"}) if name in overrides else {}
+    if name in SHIPPED_MATERIALS:
+        return SHIPPED_MATERIALS[name].with_overrides(values)
+    from mlsim.materials import Quantity
+
+    unknown = Quantity(None, "not given in the scene")
+    base = Material(
+        name=name,
+        description=overrides[name].description or "defined in the scene",
+        **{p: unknown for p in MATERIAL_PROPERTIES},
+    )
+    return base.with_overrides(values)
+
+
+# ------------------------------------------------------------------------------------ loading
+def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Scene:
+    """Read and validate a TOML scene. Raises :class:`SceneError` (with every problem) if invalid."""
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError([Problem("<file>", str(path), "no such scene file")], source=str(path))
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SceneError([Problem("<file>", str(path), f"not valid TOML: {exc}")], source=str(path)) from None
+    for dotted, value in (overrides or {}).items():
+        _set_path(data, _split_path(dotted), value, dotted)
+    return scene_from_dict(data, source=str(path))
+
+
+def scene_from_dict(data: dict, source: str | None = None) -> Scene:
+    """Validate a plain dict (as read from TOML) into a :class:`Scene`."""
+    try:
+        scene = Scene.model_validate(data)
+    except ValidationError as exc:
+        raise SceneError(_problems_from_pydantic(exc), source=source) from None
+    problems = check_consistency(scene)
+    if problems:
+        raise SceneError(problems, source=source)
+    return scene
+
+
+def check_consistency(scene: Scene) -> list[Problem]:
+    """Checks that involve several fields (each field alone is already valid)."""
+    problems: list[Problem] = []
+    s = scene.sensor
+    if s.surface_size_mm is not None and s.pitch_mm is not None:
+        problems.append(Problem("sensor.pitch_mm", s.pitch_mm, "give either surface_size_mm or pitch_mm, not both"))
+        return problems
+    pitch = min(s.pitch_x_mm, s.pitch_y_mm)
+    if s.rod.diameter_mm >= pitch:
+        problems.append(
+            Problem(
+                "sensor.rod.diameter_mm",
+                s.rod.diameter_mm,
+                f"rods overlap: the pitch is {pitch:g} mm ({_pitch_origin(s)}); "
+                f"use a diameter < {pitch:g} mm or a larger pitch",
+            )
+        )
+    radius = s.rod.diameter_mm / 2.0
+    layers = s.layers.absorber_mm + s.layers.ml_mm
+    for limit, what in ((radius, "rod radius"), (s.base.thickness_mm, "base thickness"), (s.rod.height_mm, "rod height")):
+        if layers >= limit:
+            problems.append(
+                Problem(
+                    "sensor.layers.ml_mm",
+                    s.layers.ml_mm,
+                    f"the layers (absorber {s.layers.absorber_mm:g} + ML {s.layers.ml_mm:g} = {layers:g} mm) "
+                    f"must be thinner than the {what} ({limit:g} mm)",
+                )
+            )
+            break
+    stack = scene.camera.distance_mm + scene.optics.acrylic_thickness_mm + s.base.thickness_mm + s.rod.height_mm
+    if stack > s.shell_height_mm:
+        problems.append(
+            Problem(
+                "sensor.rod.height_mm",
+                s.rod.height_mm,
+                f"the rod tips would be {stack:g} mm above the camera (camera distance {scene.camera.distance_mm:g} "
+                f"+ acrylic {scene.optics.acrylic_thickness_mm:g} + base {s.base.thickness_mm:g} + rod "
+                f"{s.rod.height_mm:g}) but the shell is {s.shell_height_mm:g} mm tall; shorten the rod, "
+                "move the camera closer (camera.distance_mm) or raise sensor.shell_height_mm",
+            )
+        )
+    frame_ms = 1000.0 / scene.camera.fps
+    if scene.camera.exposure_ms > frame_ms * (1 + 1e-9):
+        problems.append(
+            Problem("camera.exposure_ms", scene.camera.exposure_ms, f"must be <= the frame period {frame_ms:.4g} ms at {scene.camera.fps:g} FPS")
+        )
+    known = sorted(set(SHIPPED_MATERIALS) | set(scene.materials))
+    for region in ("core", "ml_layer", "absorber"):
+        name = getattr(s.materials, region)
+        if name not in known:
+            problems.append(Problem(f"sensor.materials.{region}", name, f"unknown material; choose one of: {', '.join(known)}"))
+        elif SHIPPED_MATERIALS.get(name) is not None and SHIPPED_MATERIALS[name].rigid:
+            problems.append(Problem(f"sensor.materials.{region}", name, "is a rigid material; the rods must be an elastomer"))
+    for name, override in scene.materials.items():
+        if name not in SHIPPED_MATERIALS:
+            for needed in ("young_modulus_pa", "poisson_ratio", "density_kg_m3"):
+                if getattr(override, needed) is None:
+                    problems.append(
+                        Problem(f"materials.{name}.{needed}", None, "a new material needs young_modulus_pa, poisson_ratio and density_kg_m3")
+                    )
+    from mlsim.pipeline import OUTPUTS  # the planner owns the list of products
+
+    for i, out in enumerate(scene.outputs):
+        if out not in OUTPUTS:
+            problems.append(Problem(f"outputs[{i}]", out, f"unknown output; choose from: {', '.join(OUTPUTS)}"))
+    if scene.load is not None:
+        x, y = scene.load.start_xy_mm
+        if abs(x) > s.size_x_mm / 2 or abs(y) > s.size_y_mm / 2:
+            problems.append(
+                Problem("load.start_xy_mm", [x, y], f"the indenter must start over the surface (|x| <= {s.size_x_mm / 2:g}, |y| <= {s.size_y_mm / 2:g} mm)")
+            )
+    mesh = scene.fidelity.mesh
+    if mesh.edge_length_mm > s.rod.diameter_mm:
+        problems.append(
+            Problem("fidelity.mesh.edge_length_mm", mesh.edge_length_mm, f"must be <= the rod diameter ({s.rod.diameter_mm:g} mm) to resolve the rods")
+        )
+    volume_mm3 = s.size_x_mm * s.size_y_mm * s.base.thickness_mm + s.n_rods * math.pi * radius**2 * s.rod.height_mm
+    regular_tet_mm3 = mesh.edge_length_mm**3 / (6 * math.sqrt(2))
+    if volume_mm3 / regular_tet_mm3 > 5e6:
+        problems.append(
+            Problem(
+                "fidelity.mesh.edge_length_mm",
+                mesh.edge_length_mm,
+                f"would give about {volume_mm3 / regular_tet_mm3:.3g} tetrahedra (limit 5e6); use a larger edge length",
+            )
+        )
+    if mesh.resolved_envelope_mm >= min(s.layers.ml_mm, radius) and mesh.envelope_mm is not None:
+        problems.append(Problem("fidelity.mesh.envelope_mm", mesh.envelope_mm, f"must be < the ML layer ({s.layers.ml_mm:g} mm)"))
+    return problems
+
+
+def _pitch_origin(s: SensorSpec) -> str:
+    if s.pitch_mm is not None:
+        return "sensor.pitch_mm"
+    return f"surface {s.surface_size_mm:g} mm over {max(s.rows, s.cols)} rods"
+
+
+# ----------------------------------------------------------------------- error text from pydantic
+_TAGS = set(SEGMENT_KINDS) | set(INDENTER_SHAPES)
+
+
+def _problems_from_pydantic(exc: ValidationError) -> list[Problem]:
+    problems = []
+    for err in exc.errors(include_url=False):
+        loc = list(err["loc"])
+        # Discriminated unions put the tag in the location: load.segments.0.press.speed_mm_s.
+        clean = [p for i, p in enumerate(loc) if not (p in _TAGS and i > 0 and (isinstance(loc[i - 1], int) or loc[i - 1] == "indenter"))]
+        path = _join_path(clean)
+        problems.append(Problem(path or "<scene>", err.get("input"), _message(err, clean)))
+    return problems
+
+
+def _message(err: dict, loc: list) -> str:
+    kind = err["type"]
+    ctx = err.get("ctx") or {}
+    if kind == "greater_than":
+        return f"must be > {ctx['gt']}"
+    if kind == "greater_than_equal":
+        return f"must be >= {ctx['ge']}"
+    if kind == "less_than":
+        return f"must be < {ctx['lt']}"
+    if kind == "less_than_equal":
+        return f"must be <= {ctx['le']}"
+    if kind == "finite_number":
+        return "must be a finite number (NaN and inf are not allowed)"
+    if kind in ("float_type", "float_parsing"):
+        return f"must be a number, not {type(err.get('input')).__name__}"
+    if kind in ("int_type", "int_parsing", "int_from_float"):
+        return f"must be an integer, not {type(err.get('input')).__name__}"
+    if kind == "bool_type":
+        return "must be true or false"
+    if kind == "string_type":
+        return "must be a string"
+    if kind == "missing":
+        return "required field is missing"
+    if kind == "extra_forbidden":
+        valid = _valid_keys(loc[:-1])
+        return f"unknown key; valid keys here: {', '.join(valid)}" if valid else "unknown key"
+    if kind == "literal_error":
+        return f"must be one of: {ctx.get('expected', '')}"
+    if kind == "union_tag_invalid":
+        return f"unknown {ctx.get('discriminator', '').strip(chr(39))} {ctx.get('tag')!r}; choose one of: {ctx.get('expected_tags')}"
+    if kind == "union_tag_not_found":
+        return f"needs {ctx.get('discriminator', '')} (one of the kinds listed in the docs)"
+    if kind in ("too_short", "too_long"):
+        return f"must have {'at least' if kind == 'too_short' else 'at most'} {ctx.get('min_length', ctx.get('max_length'))} item(s)"
+    if kind in ("tuple_type", "list_type"):
+        return "must be a list"
+    if kind in ("dict_type", "model_type"):
+        return "must be a table (section)"
+    if kind == "value_error":
+        return str(ctx.get("error", err["msg"]))
+    return err["msg"]
+
+
+def _valid_keys(loc: list) -> list[str]:
+    """Field names of the model at a location, for 'unknown key' messages."""
+    model: Any = Scene
+    for part in loc:
+        if isinstance(part, int) or model is None:
+            continue
+        if part in _TAGS:
+            model = _tagged_model(part)
+            continue
+        fields = getattr(model, "model_fields", None)
+        if fields is None or part not in fields:
+            return []
+        model = _model_of(fields[part].annotation)
+    return sorted(getattr(model, "model_fields", {}) or [])
+
+
+def _tagged_model(tag: str):
+    for cls in (PressSegment, SlideSegment, RotateSegment, HoldSegment, ReleaseSegment, FlatIndenter, CylinderIndenter, SphereIndenter, BoxIndenter):
+        for key in ("kind", "shape"):
+            field = cls.model_fields.get(key)
+            if field is not None and tag in getattr(field.annotation, "__args__", ()):
+                return cls
+    return None
+
+
+def _model_of(annotation):
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in getattr(annotation, "__args__", ()):
+        found = _model_of(arg)
+        if found is not None:
+            return found
+    return None
+
+
+# ---------------------------------------------------------------------------------- dotted paths
+def _split_path(path: str) -> list:
+    parts: list = []
+    for token in path.split("."):
+        while "[" in token:
+            head, _, rest = token.partition("[")
+            if head:
+                parts.append(head)
+            index, _, token = rest.partition("]")
+            parts.append(int(index))
+        if token:
+            parts.append(token)
+    return parts
+
+
+def _join_path(parts: list) -> str:
+    out = ""
+    for p in parts:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out
+
+
+def _set_path(data: dict, parts: list, value, dotted: str) -> None:
+    node = data
+    for part in parts[:-1]:
+        if isinstance(part, int):
+            node = node[part]
+        else:
+            node = node.setdefault(part, {})
+        if not isinstance(node, (dict, list)):
+            raise SceneError([Problem(dotted, value, "is not a field (its parent is a value, not a section)")])
+    last = parts[-1]
+    node[last] = value
+
+
+def _flatten(node, prefix: str, out: dict) -> None:
+    if isinstance(node, dict):
+        for k, v in node.items():
+            _flatten(v, f"{prefix}.{k}" if prefix else k, out)
+    elif isinstance(node, list) and node and isinstance(node[0], dict):
+        for i, v in enumerate(node):
+            _flatten(v, f"{prefix}[{i}]", out)
+    else:
+        out[prefix] = node
+
+
+def _jsonable(value):
+    if isinstance(value, BaseModel):
+        return value.model_dump(mode="json")
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (tuple, list)):
+        return [_jsonable(v) for v in value]
+    return value

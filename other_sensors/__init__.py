@@ -1,0 +1,1 @@
+"""other_sensors package (filled by later issues)."""

@@ -1,0 +1,1 @@
+"""scenes package (filled by later issues)."""
