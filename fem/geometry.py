@@ -246,8 +246,15 @@ def classify_boundary(g: RodArray, points: np.ndarray):
     return tag, np.where(on_rod, rod, -1).astype(np.int32), d[np.arange(len(d)), tag]
 
 
-def project_to_surface(g: RodArray, points: np.ndarray) -> np.ndarray:
-    """Closest point (M, 3) on the exact boundary to each of ``points`` (M, 3), in metres."""
+def project_to_surface(g: RodArray, points: np.ndarray, edge_tol_m: float = 0.0) -> np.ndarray:
+    """Closest point (M, 3) on the exact boundary to each of ``points`` (M, 3), in metres.
+
+    With ``edge_tol_m > 0``, a point within that distance of two or three boundary pieces goes to
+    where they meet (a sharp edge or corner: base bottom and side, rod tip rim, rod foot): it is
+    projected onto each of those pieces' carrier surfaces in turn, which lands exactly on their
+    intersection because the carriers (the planes x, y, z = const and the rod cylinders) meet at
+    right angles. Nodes on a mesh's sharp edges need this, or they sit on one face and miss the other.
+    """
     p = np.array(points, dtype=float)
     d, rod = _piece_distances(g, p)
     tag = np.argmin(d, axis=1)
@@ -278,6 +285,24 @@ def project_to_surface(g: RodArray, points: np.ndarray) -> np.ndarray:
     out[m, 2] = tip
     outside = m & (r > big_r)
     out[outside, :2] = c[outside] + big_r * unit[outside]
+    if edge_tol_m > 0:
+        near = d <= edge_tol_m
+        corner = near.sum(axis=1) >= 2
+        q = p[corner]
+        nq = near[corner]
+        for _ in range(2):  # a second sweep settles points near three pieces (base corners)
+            q[nq[:, FaceTag.BASE_BOTTOM], 2] = 0.0
+            sx = nq[:, FaceTag.BASE_SIDE] & (np.abs(hx - np.abs(q[:, 0])) <= edge_tol_m)
+            sy = nq[:, FaceTag.BASE_SIDE] & (np.abs(hy - np.abs(q[:, 1])) <= edge_tol_m)
+            q[sx, 0] = np.sign(q[sx, 0]) * hx
+            q[sy, 1] = np.sign(q[sy, 1]) * hy
+            q[nq[:, FaceTag.BASE_TOP], 2] = t
+            q[nq[:, FaceTag.ROD_TIP], 2] = tip
+            cyl = nq[:, FaceTag.ROD_SIDE]
+            cq = c[corner][cyl]
+            rq = q[cyl, :2] - cq
+            q[cyl, :2] = cq + big_r * rq / np.maximum(np.linalg.norm(rq, axis=1), 1e-300)[:, None]
+        out[corner] = q
     return out
 
 

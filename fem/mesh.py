@@ -340,13 +340,13 @@ def _p2_triangle_areas(nodes6: np.ndarray) -> np.ndarray:
 _CHECK_BARY = np.vstack([np.eye(4), 0.5 * (np.eye(4)[TET10_EDGES[:, 0]] + np.eye(4)[TET10_EDGES[:, 1]]), np.full((1, 4), 0.25)])
 
 
-def _curve_boundary(g: RodArray, points, tets, edges, tet_edges, faces, face_edges, max_rounds: int = 6):
+def _curve_boundary(g: RodArray, points, tets, edges, tet_edges, faces, face_edges, edge_tol_m: float, max_rounds: int = 6):
     """Mid-edge nodes: straight midpoints, with boundary ones projected onto the exact surface;
     tets that would fold keep straight edges."""
     mids = 0.5 * (points[edges[:, 0]] + points[edges[:, 1]])
     curved = mids.copy()
     bnd = np.unique(face_edges)
-    curved[bnd] = project_to_surface(g, mids[bnd])
+    curved[bnd] = project_to_surface(g, mids[bnd], edge_tol_m=edge_tol_m)
     straight_det = 6.0 * signed_volumes(points, tets)
     for _ in range(max_rounds):
         nodes10 = np.concatenate([points[tets], curved[tet_edges]], axis=1)
@@ -478,11 +478,11 @@ def _drop_unused(points, tets):
     return points[used], remap[tets]
 
 
-def _snap_boundary(g: RodArray, points, tets, faces, max_rounds: int = 6):
+def _snap_boundary(g: RodArray, points, tets, faces, edge_tol_m: float, max_rounds: int = 6):
     """Move boundary nodes onto the exact surface, keeping any node whose move would squash a tet."""
     nodes = np.unique(faces)
     snapped = points.copy()
-    snapped[nodes] = project_to_surface(g, points[nodes])
+    snapped[nodes] = project_to_surface(g, points[nodes], edge_tol_m=edge_tol_m)
     vol0 = signed_volumes(points, tets)
     for _ in range(max_rounds):
         bad = signed_volumes(snapped, tets) <= 0.05 * vol0
@@ -545,10 +545,13 @@ def build_mesh(g: RodArray, params: MeshParams, progress: bool = True) -> tuple[
                 bar.update(1)
                 continue
             tetwild_s = time.perf_counter() - t0
-            points = _snap_boundary(g, points, tets, faces)
+            # fTetWild's surface strays up to the envelope from the exact one, so nodes within twice
+            # that of two pieces are taken to lie on their common (sharp) edge.
+            edge_tol = 2.0 * params.envelope_m
+            points = _snap_boundary(g, points, tets, faces, edge_tol)
             tets = orient_tets(points, tets)
             edges, tet_edges, face_edges = edge_table(tets, faces)
-            edge_nodes = _curve_boundary(g, points, tets, edges, tet_edges, faces, face_edges)
+            edge_nodes = _curve_boundary(g, points, tets, edges, tet_edges, faces, face_edges, edge_tol)
             nodes10 = np.concatenate([points[tets], edge_nodes[tet_edges]], axis=1)
             centroid = points[tets].mean(axis=1)
             face_tag, face_rod, _ = classify_boundary(g, points[faces].mean(axis=1))

@@ -157,7 +157,7 @@ _STAGE_LIST = [
         ),
         needs=("geometry",),
         run=_mesh_run,
-        version="1",
+        version="2",  # 2: curved (quadratic) geometry, edge-aware snapping, jittered layer fractions
         save=_mesh_save,
         load=_mesh_load,
         write=_mesh_write,

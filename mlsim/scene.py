@@ -408,7 +408,7 @@ class Scene(_Model):
 
         >>> scene.with_values({"sensor.rod.height_mm": 12.0})
         """
-        data = self.model_dump(mode="python", exclude_none=True)
+        data = self.model_dump(mode="json", exclude_none=True)
         for path, value in values.items():
             _set_path(data, _split_path(path), value, path)
         return scene_from_dict(data, source="with_values")
@@ -588,29 +588,32 @@ def _problems_from_pydantic(exc: ValidationError) -> list[Problem]:
     return problems
 
 
+_BOUNDS = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<", "less_than_equal": "<="}
+_BOUND_KEYS = {">": "gt", ">=": "ge", "<": "lt", "<=": "le"}
+_FIXED = {
+    "finite_number": "must be a finite number (NaN and inf are not allowed)",
+    "bool_type": "must be true or false",
+    "string_type": "must be a string",
+    "missing": "required field is missing",
+    "tuple_type": "must be a list",
+    "list_type": "must be a list",
+    "dict_type": "must be a table (section)",
+    "model_type": "must be a table (section)",
+}
+_TYPED = {"float_type": "a number", "float_parsing": "a number", "int_type": "an integer", "int_parsing": "an integer", "int_from_float": "an integer"}
+
+
 def _message(err: dict, loc: list) -> str:
+    """Our wording of a pydantic error: what is valid, in the scene's own terms."""
     kind = err["type"]
     ctx = err.get("ctx") or {}
-    if kind == "greater_than":
-        return f"must be > {ctx['gt']}"
-    if kind == "greater_than_equal":
-        return f"must be >= {ctx['ge']}"
-    if kind == "less_than":
-        return f"must be < {ctx['lt']}"
-    if kind == "less_than_equal":
-        return f"must be <= {ctx['le']}"
-    if kind == "finite_number":
-        return "must be a finite number (NaN and inf are not allowed)"
-    if kind in ("float_type", "float_parsing"):
-        return f"must be a number, not {type(err.get('input')).__name__}"
-    if kind in ("int_type", "int_parsing", "int_from_float"):
-        return f"must be an integer, not {type(err.get('input')).__name__}"
-    if kind == "bool_type":
-        return "must be true or false"
-    if kind == "string_type":
-        return "must be a string"
-    if kind == "missing":
-        return "required field is missing"
+    if kind in _BOUNDS:
+        op = _BOUNDS[kind]
+        return f"must be {op} {ctx[_BOUND_KEYS[op]]}"
+    if kind in _FIXED:
+        return _FIXED[kind]
+    if kind in _TYPED:
+        return f"must be {_TYPED[kind]}, not {type(err.get('input')).__name__}"
     if kind == "extra_forbidden":
         valid = _valid_keys(loc[:-1])
         return f"unknown key; valid keys here: {', '.join(valid)}" if valid else "unknown key"
@@ -622,10 +625,6 @@ def _message(err: dict, loc: list) -> str:
         return f"needs {ctx.get('discriminator', '')} (one of the kinds listed in the docs)"
     if kind in ("too_short", "too_long"):
         return f"must have {'at least' if kind == 'too_short' else 'at most'} {ctx.get('min_length', ctx.get('max_length'))} item(s)"
-    if kind in ("tuple_type", "list_type"):
-        return "must be a list"
-    if kind in ("dict_type", "model_type"):
-        return "must be a table (section)"
     if kind == "value_error":
         return str(ctx.get("error", err["msg"]))
     return err["msg"]

@@ -1,0 +1,127 @@
+"""The planner: minimal plans, cache keys that follow exactly what a stage reads, lazy imports."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mlsim import pipeline
+from mlsim.cli import main
+from mlsim.pipeline import Cache, invalidated, plan, stage_key
+from mlsim.scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "scenes" / "mavig_tiny.toml"
+DEFAULT = ROOT / "scenes" / "mavig_default.toml"
+
+
+def test_plan_is_minimal_and_ordered(tmp_path):
+    scene = load_scene(TINY)
+    steps = plan(scene, Cache(tmp_path), outputs=("mesh",))
+    assert [(s.stage.name, s.action, s.requested) for s in steps] == [("geometry", "run", False), ("mesh", "run", True)]
+    steps = plan(scene, Cache(tmp_path), outputs=("geometry",))
+    assert [s.stage.name for s in steps] == ["geometry"]
+    with pytest.raises(KeyError, match="choose from"):
+        plan(scene, Cache(tmp_path), outputs=("hologram",))
+
+
+def test_keys_follow_exactly_the_fields_a_stage_reads():
+    scene = load_scene(DEFAULT)
+    mesh_key = stage_key(scene, "mesh")
+    assert stage_key(scene.with_values({"camera.gain_db": 12.0}), "mesh") == mesh_key
+    assert stage_key(scene.with_values({"sensor.materials.core": "PDMS"}), "mesh") == mesh_key
+    assert stage_key(scene.with_values({"fidelity.mesh.timeout_s": 30.0}), "mesh") == mesh_key
+    taller = scene.with_values({"sensor.rod.height_mm": 12.0})
+    assert stage_key(taller, "mesh") != mesh_key
+    assert invalidated(scene, taller) == ["geometry", "mesh"]
+    assert invalidated(scene, scene.with_values({"fidelity.mesh.edge_length_mm": 1.5})) == ["mesh"]
+    assert invalidated(scene, scene.with_values({"camera.gain_db": 3.0})) == []
+
+
+_PROBE = """
+import json, sys
+from mlsim import pipeline
+from mlsim.scene import load_scene
+scene = load_scene(sys.argv[1], overrides=json.loads(sys.argv[4]))
+res = pipeline.run(scene, out_dir=sys.argv[3], cache=pipeline.Cache(sys.argv[2]), outputs=("mesh",), progress=False, log=lambda m: None)
+heavy = sorted(m for m in ("mitsuba", "drjit", "torch", "cv2", "kornia", "colour") if m in sys.modules)
+print(json.dumps({"heavy": heavy, "actions": {s.stage.name: s.action for s in res.steps},
+                  "mesh_hash": res.summary["stages"]["mesh"]["summary"]["mesh_hash"]}))
+"""
+
+
+def _probe(tmp_path, cache_dir, out, overrides):
+    proc = subprocess.run(
+        [sys.executable, "-c", _PROBE, str(TINY), str(cache_dir), str(out), json.dumps(overrides)],
+        capture_output=True, text=True, cwd=ROOT, timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_mesh_only_scene_never_imports_mitsuba_and_camera_change_hits_the_cache(tmp_path):
+    cache_dir = tmp_path / "cache"
+    first = _probe(tmp_path, cache_dir, tmp_path / "a", {})
+    assert first["heavy"] == []  # no mitsuba, drjit, torch, OpenCV, kornia or colour-science
+    assert first["actions"] == {"geometry": "run", "mesh": "run"}
+    second = _probe(tmp_path, cache_dir, tmp_path / "b", {"camera.gain_db": 6.0, "camera.fps": 60.0, "camera.exposure_ms": 10.0})
+    assert second["actions"] == {"mesh": "load"}  # cache hit: the geometry is not even rebuilt
+    assert second["mesh_hash"] == first["mesh_hash"]
+    third = _probe(tmp_path, cache_dir, tmp_path / "c", {"fidelity.mesh.edge_length_mm": 2.2})
+    assert third["actions"] == {"geometry": "run", "mesh": "run"}
+    assert third["mesh_hash"] != first["mesh_hash"]
+
+
+def test_run_writes_outputs_and_summary(tiny_mesh, cache, tmp_path):
+    import meshio
+
+    scene, g, mesh, report = tiny_mesh
+    res = pipeline.run(scene, out_dir=tmp_path, cache=cache, outputs=("geometry", "mesh"), progress=False, log=lambda m: None)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["stages"]["mesh"]["action"] == "load"
+    assert summary["stages"]["mesh"]["summary"]["mesh_hash"] == mesh.content_hash()
+    assert summary["scene"]["hash"] == scene.content_hash()
+    vtu = meshio.read(tmp_path / "mesh.vtu")
+    assert len(vtu.cells_dict["tetra10"]) == mesh.n_tets
+    frac = vtu.cell_data_dict["ml_fraction"]["tetra10"]
+    np.testing.assert_allclose(frac, mesh.layer_fraction[:, 1])
+    import trimesh
+
+    outer = trimesh.load(tmp_path / "surface_outer.ply")
+    assert outer.is_watertight
+    assert outer.volume == pytest.approx(g.volume_m3(), rel=5e-3)
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []  # no partial files left
+
+
+def test_dry_run_reports_cached_stages(tiny_mesh, cache, capsys):
+    assert main(["run", str(TINY), "--dry-run", "--cache", str(cache.root)]) == 0
+    out = capsys.readouterr().out
+    assert "mesh       cached" in out and "geometry" not in out.split("mesh")[0]
+
+
+def test_interrupted_store_leaves_no_cache_entry(tmp_path):
+    from mlsim.pipeline import Stage
+
+    def bad_save(result, directory):
+        (directory / "half.bin").write_bytes(b"x")
+        raise KeyboardInterrupt
+
+    stage = Stage(name="t", doc="", reads=(), needs=(), run=lambda *a: None, save=bad_save, load=lambda d: None)
+    cache = Cache(tmp_path)
+    with pytest.raises(KeyboardInterrupt):
+        cache.store(stage, "k" * 64, object())
+    assert not cache.has("t", "k" * 64)
+    assert list((tmp_path / "t").iterdir()) == []
+
+
+def test_summary_and_cli_exit_codes(tmp_path, tiny_mesh, cache, capsys):
+    code = main(["mesh", str(TINY), "--out", str(tmp_path), "--cache", str(cache.root), "--quiet"])
+    assert code == 0
+    assert (tmp_path / "mesh.vtu").is_file() and (tmp_path / "summary.json").is_file()
+    assert main(["run", str(TINY), "--outputs", "nonsense", "--cache", str(cache.root)]) == 2
+    assert "--outputs = 'nonsense'" in capsys.readouterr().err
