@@ -447,7 +447,8 @@ def _run_tetwild(vertices_mm, faces, edge_length_mm, epsilon_rel, coarsen, timeo
         env = dict(os.environ)
         root = str(Path(__file__).resolve().parent.parent)
         env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+        # cwd=tmp: fTetWild writes a scratch file (__tracked_surface.stl) into the working directory.
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, cwd=tmp)
         start = time.monotonic()
         try:
             while proc.poll() is None:
