@@ -36,6 +36,8 @@ __all__ = [
     "layer_index",
     "classify_boundary",
     "project_to_surface",
+    "project_onto_pieces",
+    "project_edge_midpoints",
     "solid_below_depth",
     "outer_surface",
     "emitting_surface",
@@ -157,6 +159,8 @@ class RodArray:
         """
         d = float(depth_m)
         r, h = self.rod_radius_m, self.rod_height_m
+        if not (0 <= d < min(r, h, self.base_thickness_m)):
+            raise ValueError(f"depth_m = {d}: must be within [0, min(R, H, T))")
         free_area = self.size_x_m * self.size_y_m - self.n_rods * math.pi * r * r
         rod = 2 * math.pi * (r - d) * (h - d) + math.pi * (r - d) ** 2
         fillet = math.pi**2 * r * d - 2 * math.pi * d * d
@@ -202,7 +206,8 @@ def depth_below_top(g: RodArray, points: np.ndarray) -> np.ndarray:
     in_rod = np.minimum(big_r - r, tip - z)
     under_rod = np.hypot(np.maximum(big_r - r, 0.0), t - z)
     depth = np.where(z >= t, np.where(r < big_r, in_rod, 0.0), np.where(r < big_r, under_rod, t - z))
-    return np.maximum(depth, 0.0)
+    outside = (z < 0) | (np.abs(points[:, 0]) > g.size_x_m / 2) | (np.abs(points[:, 1]) > g.size_y_m / 2)
+    return np.where(outside, 0.0, np.maximum(depth, 0.0))
 
 
 def layer_index(g: RodArray, points: np.ndarray) -> np.ndarray:
@@ -220,11 +225,15 @@ def _piece_distances(g: RodArray, points: np.ndarray) -> tuple[np.ndarray, np.nd
     rod, r = g.radial(p)
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     t, tip, big_r = g.base_thickness_m, g.tip_z_m, g.rod_radius_m
-    side = np.minimum(np.abs(g.size_x_m / 2 - np.abs(x)), np.abs(g.size_y_m / 2 - np.abs(y)))
+    hx, hy = g.size_x_m / 2, g.size_y_m / 2
+    out_x, out_y = _outside(np.abs(x), hx), _outside(np.abs(y), hy)  # how far beyond the footprint
+    out_z = _outside(z, t) + _outside(-z, 0.0)  # how far above or below the base's height range
+    wall_x = np.sqrt((hx - np.abs(x)) ** 2 + out_y**2 + out_z**2)
+    wall_y = np.sqrt((hy - np.abs(y)) ** 2 + out_x**2 + out_z**2)
     d = np.empty((len(p), 5))
-    d[:, FaceTag.BASE_BOTTOM] = np.hypot(np.abs(z), _outside(np.abs(x), g.size_x_m / 2) + _outside(np.abs(y), g.size_y_m / 2))
-    d[:, FaceTag.BASE_SIDE] = np.hypot(side, _outside(z, t) + _outside(-z, 0.0))
-    d[:, FaceTag.BASE_TOP] = np.hypot(z - t, np.maximum(big_r - r, 0.0))
+    d[:, FaceTag.BASE_BOTTOM] = np.sqrt(z**2 + out_x**2 + out_y**2)
+    d[:, FaceTag.BASE_SIDE] = np.minimum(wall_x, wall_y)
+    d[:, FaceTag.BASE_TOP] = np.sqrt((z - t) ** 2 + np.maximum(big_r - r, 0.0) ** 2 + out_x**2 + out_y**2)
     d[:, FaceTag.ROD_SIDE] = np.hypot(r - big_r, np.maximum(t - z, 0.0) + np.maximum(z - tip, 0.0))
     d[:, FaceTag.ROD_TIP] = np.hypot(z - tip, np.maximum(r - big_r, 0.0))
     return d, rod
@@ -250,14 +259,22 @@ def project_to_surface(g: RodArray, points: np.ndarray, edge_tol_m: float = 0.0)
     """Closest point (M, 3) on the exact boundary to each of ``points`` (M, 3), in metres.
 
     With ``edge_tol_m > 0``, a point within that distance of two or three boundary pieces goes to
-    where they meet (a sharp edge or corner: base bottom and side, rod tip rim, rod foot): it is
-    projected onto each of those pieces' carrier surfaces in turn, which lands exactly on their
-    intersection because the carriers (the planes x, y, z = const and the rod cylinders) meet at
-    right angles. Nodes on a mesh's sharp edges need this, or they sit on one face and miss the other.
+    where they meet (a sharp edge or corner: base bottom and side, rod tip rim, rod foot): see
+    :func:`project_onto_pieces`. Nodes on a mesh's sharp edges need this, or they sit on one face
+    and miss the other.
     """
-    p = np.array(points, dtype=float)
+    p = np.asarray(points, dtype=float)
     d, rod = _piece_distances(g, p)
-    tag = np.argmin(d, axis=1)
+    out = _onto_piece(g, p, np.argmin(d, axis=1), rod)
+    if edge_tol_m > 0:
+        near = d <= edge_tol_m
+        corner = near.sum(axis=1) >= 2
+        out[corner] = project_onto_pieces(g, p[corner], near[corner], rod[corner], edge_tol_m)
+    return out
+
+
+def _onto_piece(g: RodArray, p: np.ndarray, tag: np.ndarray, rod: np.ndarray) -> np.ndarray:
+    """Closest point of the piece ``tag`` (M,) to each point (M, 3) (pieces are closed sets)."""
     out = p.copy()
     c = g.centres_m[rod]
     rel = p[:, :2] - c
@@ -265,16 +282,21 @@ def project_to_surface(g: RodArray, points: np.ndarray, edge_tol_m: float = 0.0)
     unit = rel / np.where(r > 0, r, 1.0)[:, None]
     t, tip, big_r = g.base_thickness_m, g.tip_z_m, g.rod_radius_m
     hx, hy = g.size_x_m / 2, g.size_y_m / 2
+    inside_xy = np.column_stack([np.clip(p[:, 0], -hx, hx), np.clip(p[:, 1], -hy, hy)])
 
     m = tag == FaceTag.BASE_BOTTOM
+    out[m, :2] = inside_xy[m]
     out[m, 2] = 0.0
     m = tag == FaceTag.BASE_SIDE
     on_x = np.abs(hx - np.abs(p[:, 0])) <= np.abs(hy - np.abs(p[:, 1]))
     mx, my = m & on_x, m & ~on_x
-    out[mx, 0] = np.sign(p[mx, 0]) * hx
-    out[my, 1] = np.sign(p[my, 1]) * hy
+    out[mx, 0] = np.where(p[mx, 0] >= 0, hx, -hx)
+    out[mx, 1] = inside_xy[mx, 1]
+    out[my, 1] = np.where(p[my, 1] >= 0, hy, -hy)
+    out[my, 0] = inside_xy[my, 0]
     out[m, 2] = np.clip(p[m, 2], 0.0, t)
     m = tag == FaceTag.BASE_TOP
+    out[m, :2] = inside_xy[m]
     out[m, 2] = t
     inside = m & (r < big_r)  # closest point of the base top is then the rim
     out[inside, :2] = c[inside] + big_r * unit[inside]
@@ -285,24 +307,56 @@ def project_to_surface(g: RodArray, points: np.ndarray, edge_tol_m: float = 0.0)
     out[m, 2] = tip
     outside = m & (r > big_r)
     out[outside, :2] = c[outside] + big_r * unit[outside]
-    if edge_tol_m > 0:
-        near = d <= edge_tol_m
-        corner = near.sum(axis=1) >= 2
-        q = p[corner]
-        nq = near[corner]
-        for _ in range(2):  # a second sweep settles points near three pieces (base corners)
-            q[nq[:, FaceTag.BASE_BOTTOM], 2] = 0.0
-            sx = nq[:, FaceTag.BASE_SIDE] & (np.abs(hx - np.abs(q[:, 0])) <= edge_tol_m)
-            sy = nq[:, FaceTag.BASE_SIDE] & (np.abs(hy - np.abs(q[:, 1])) <= edge_tol_m)
-            q[sx, 0] = np.sign(q[sx, 0]) * hx
-            q[sy, 1] = np.sign(q[sy, 1]) * hy
-            q[nq[:, FaceTag.BASE_TOP], 2] = t
-            q[nq[:, FaceTag.ROD_TIP], 2] = tip
-            cyl = nq[:, FaceTag.ROD_SIDE]
-            cq = c[corner][cyl]
-            rq = q[cyl, :2] - cq
-            q[cyl, :2] = cq + big_r * rq / np.maximum(np.linalg.norm(rq, axis=1), 1e-300)[:, None]
-        out[corner] = q
+    return out
+
+
+def project_onto_pieces(g: RodArray, points: np.ndarray, pieces: np.ndarray, rod: np.ndarray, side_tol_m: float) -> np.ndarray:
+    """Project points (M, 3) onto the intersection of the carrier surfaces of the chosen pieces.
+
+    pieces: (M, 5) bool, which :class:`FaceTag` pieces each point lies on. rod: (M,) the rod whose
+    cylinder is meant. The carriers (planes x, y, z = const and the rod cylinders) meet at right
+    angles, so projecting onto each in turn lands exactly on their common edge or corner. For the
+    base side, the wall(s) within ``side_tol_m`` are used (both at a vertical corner edge), else
+    the nearer one.
+    """
+    q = np.array(points, dtype=float)
+    t, tip, big_r = g.base_thickness_m, g.tip_z_m, g.rod_radius_m
+    hx, hy = g.size_x_m / 2, g.size_y_m / 2
+    c = g.centres_m[rod]
+    for _ in range(2):  # a second sweep settles points on three pieces (base corners)
+        q[pieces[:, FaceTag.BASE_BOTTOM], 2] = 0.0
+        side = pieces[:, FaceTag.BASE_SIDE]
+        gap_x, gap_y = np.abs(hx - np.abs(q[:, 0])), np.abs(hy - np.abs(q[:, 1]))
+        sx = side & ((gap_x <= side_tol_m) | (gap_x <= gap_y))
+        sy = side & ((gap_y <= side_tol_m) | (gap_y < gap_x))
+        q[sx, 0] = np.where(q[sx, 0] >= 0, hx, -hx)
+        q[sy, 1] = np.where(q[sy, 1] >= 0, hy, -hy)
+        q[pieces[:, FaceTag.BASE_TOP], 2] = t
+        q[pieces[:, FaceTag.ROD_TIP], 2] = tip
+        cyl = pieces[:, FaceTag.ROD_SIDE]
+        rel = q[cyl, :2] - c[cyl]
+        q[cyl, :2] = c[cyl] + big_r * rel / np.maximum(np.linalg.norm(rel, axis=1), 1e-300)[:, None]
+    return q
+
+
+def project_edge_midpoints(g: RodArray, a: np.ndarray, b: np.ndarray, tol_m: float) -> np.ndarray:
+    """Mid-edge nodes (M, 3) of boundary edges a-b (each (M, 3)) placed on the exact surface.
+
+    An edge whose two ends lie on the same piece(s) (within ``tol_m``) keeps to them: a chord of
+    the tip rim gets its middle on the rim circle, a chord along a rod side on the cylinder, however
+    far the chord sags. An edge that crosses from one piece to another (a chamfer of a sharp edge)
+    gets its middle projected to the nearest surface point.
+    """
+    mid = 0.5 * (a + b)
+    da, rod_a = _piece_distances(g, a)
+    db, rod_b = _piece_distances(g, b)
+    _, rod_m = _piece_distances(g, mid)
+    common = (da <= tol_m) & (db <= tol_m)
+    # Both ends on one rod's surfaces must mean that rod (not its neighbour's cell).
+    common[:, [FaceTag.ROD_SIDE, FaceTag.ROD_TIP]] &= (rod_a == rod_b)[:, None]
+    out = project_to_surface(g, mid, edge_tol_m=tol_m)
+    shared = common.any(axis=1)
+    out[shared] = project_onto_pieces(g, mid[shared], common[shared], rod_a[shared], tol_m)
     return out
 
 
@@ -335,10 +389,13 @@ def solid_below_depth(g: RodArray, depth_m: float, segments: int = 48):
     stem = m3.Manifold.revolve(m3.CrossSection([profile]), circular_segments=segments)
     rods = [stem.translate([cx, cy, 0.0]) for cx, cy in g.centres_m]
     solid = m3.Manifold.batch_boolean([slab, *rods], m3.OpType.Add)
-    mesh = solid.to_mesh()
+    mesh = solid.to_mesh64()
     vertices = np.asarray(mesh.vert_properties, dtype=float)[:, :3]
     faces = np.asarray(mesh.tri_verts, dtype=np.int64)
-    return trimesh.Trimesh(vertices, faces, process=True)
+    # process=False: manifold3d's output is already merged and watertight. Where the slab's top
+    # meets a fillet's rim it may hold a few zero-area slivers; trimesh's vertex merging would
+    # collapse them into edges shared by six faces (non-manifold), so we keep them as they are.
+    return trimesh.Trimesh(vertices, faces, process=False)
 
 
 def outer_surface(g: RodArray, segments: int = 48):

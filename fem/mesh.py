@@ -50,7 +50,16 @@ from pathlib import Path
 
 import numpy as np
 
-from fem.geometry import FaceTag, RodArray, classify_boundary, depth_below_top, layer_index, outer_surface, project_to_surface
+from fem.geometry import (
+    FaceTag,
+    RodArray,
+    classify_boundary,
+    depth_below_top,
+    layer_index,
+    outer_surface,
+    project_edge_midpoints,
+    project_to_surface,
+)
 from mlsim.errors import MeshingError
 
 __all__ = [
@@ -346,7 +355,7 @@ def _curve_boundary(g: RodArray, points, tets, edges, tet_edges, faces, face_edg
     mids = 0.5 * (points[edges[:, 0]] + points[edges[:, 1]])
     curved = mids.copy()
     bnd = np.unique(face_edges)
-    curved[bnd] = project_to_surface(g, mids[bnd], edge_tol_m=edge_tol_m)
+    curved[bnd] = project_edge_midpoints(g, points[edges[bnd, 0]], points[edges[bnd, 1]], edge_tol_m)
     straight_det = 6.0 * signed_volumes(points, tets)
     for _ in range(max_rounds):
         nodes10 = np.concatenate([points[tets], curved[tet_edges]], axis=1)
