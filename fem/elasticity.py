@@ -1,0 +1,203 @@
+"""Small-strain elasticity on tetrahedra: weak forms, assembly (scikit-fem) and static solves.
+
+Two discretisations, selected by ``element``:
+
+- ``"P1"``, ``"P2"``: displacement only, linear or quadratic (isoparametric on curved meshes).
+  Stiffness form ``a(u, v) = int 2 mu eps(u) : eps(v) + lambda div u div v``. Lock as nu -> 1/2.
+- ``"P2P1"``: Taylor-Hood mixed displacement-pressure (Herrmann) form, stable as nu -> 1/2
+  [BoffiBrezziFortin2013]_ (sec. 8.8): with p = lambda div u,
+
+      int 2 mu eps(u) : eps(v) + p div v = int f . v
+      int q div u - p q / lambda         = 0
+
+  a symmetric saddle-point system; p is continuous P1. Stress: sigma = 2 mu eps(u) + p I.
+
+Material parameters are per element (arrays (T,)): the mesh's layers are a material field, and
+each tet gets the volume-fraction-weighted (Voigt) mean of its layers' Lame parameters, a
+simplification that is exact when the layers share a material (the default) and an upper bound
+on the stiffness of a tet cut by an interface otherwise.
+
+Shapes: node-based vectors are scikit-fem's interleaved DOF vectors; ``points`` (P, 3) in metres.
+
+References
+----------
+.. [BoffiBrezziFortin2013] D. Boffi, F. Brezzi, M. Fortin, "Mixed Finite Element Methods and
+   Applications", Springer (2013).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+import skfem
+from skfem import BilinearForm, ElementTetP1, ElementTetP2, ElementVector, LinearForm
+from skfem.helpers import ddot, div, dot, sym_grad
+
+__all__ = [
+    "ELEMENTS",
+    "Discretisation",
+    "skfem_mesh",
+    "discretise",
+    "elasticity_form",
+    "divergence_form",
+    "pressure_mass_form",
+    "body_force_form",
+    "body_force",
+    "deviatoric_form",
+    "assemble",
+    "solve_static",
+    "split",
+    "element_lame",
+]
+
+ELEMENTS = ("P1", "P2", "P2P1")
+
+
+# ------------------------------------------------------------------------------------ weak forms
+@BilinearForm
+def elasticity_form(u, v, w):
+    """2 mu eps(u) : eps(v) + lambda div u div v (w.lam, w.mu per element)."""
+    return 2.0 * w.mu * ddot(sym_grad(u), sym_grad(v)) + w.lam * div(u) * div(v)
+
+
+@BilinearForm
+def deviatoric_form(u, v, w):
+    """2 mu eps(u) : eps(v): the displacement block of the mixed form."""
+    return 2.0 * w.mu * ddot(sym_grad(u), sym_grad(v))
+
+
+@BilinearForm
+def divergence_form(p, v, w):
+    """p div v (rows: displacement test functions, columns: pressure)."""
+    return p * div(v)
+
+
+@BilinearForm
+def pressure_mass_form(p, q, w):
+    """p q / lambda."""
+    return p * q / w.lam
+
+
+def body_force_form(f) -> LinearForm:
+    """The linear form f . v for a body force density f(x) -> (3, ...) N/m^3 of the coordinates."""
+
+    @LinearForm
+    def form(v, w):
+        return dot(f(w.x), v)
+
+    return form
+
+
+# --------------------------------------------------------------------------------- discretisation
+def skfem_mesh(points: np.ndarray, tets: np.ndarray, edge_nodes: np.ndarray | None = None, tet_edges: np.ndarray | None = None):
+    """A scikit-fem mesh: ``MeshTet`` from vertices, or a curved ``MeshTet2`` when mid-edge nodes are given.
+
+    points: (P, 3). tets: (T, 4) positively oriented. edge_nodes: (E, 3) and tet_edges: (T, 6) as in
+    :class:`fem.mesh.TetMesh` (same local edge order as scikit-fem's ``t2e``).
+    """
+    base = skfem.MeshTet(np.ascontiguousarray(points.T), np.ascontiguousarray(tets.T), sort_t=False)
+    if edge_nodes is None:
+        return base
+    # scikit-fem numbers edges its own way; its t2e uses our local edge order, so map through it.
+    ours_of_theirs = np.empty(base.edges.shape[1], dtype=np.int64)
+    ours_of_theirs[base.t2e.T.ravel()] = np.asarray(tet_edges).ravel()
+    doflocs = np.vstack([points, edge_nodes[ours_of_theirs]]).T
+    return skfem.MeshTet2(np.ascontiguousarray(doflocs), np.ascontiguousarray(tets.T), sort_t=False)
+
+
+@dataclass
+class Discretisation:
+    """Bases of one discretisation: ``u`` (vector displacement) and, for P2P1, ``p`` (pressure).
+
+    The pressure unknowns of the assembled system are p / ``pressure_scale`` (Pa): with the scale
+    set to the shear modulus, every block of the saddle-point matrix is of the order mu h, which
+    keeps the direct solve accurate (unscaled, the patch test loses 4 digits at E = 1 MPa).
+    """
+
+    element: str
+    u: skfem.Basis
+    p: skfem.Basis | None = None
+    pressure_scale: float = 1.0
+
+    @property
+    def n_u(self) -> int:
+        return self.u.N
+
+    @property
+    def n_dofs(self) -> int:
+        return self.u.N + (self.p.N if self.p is not None else 0)
+
+
+def discretise(mesh, element: str, intorder: int | None = None) -> Discretisation:
+    """Bases for ``element`` in :data:`ELEMENTS` on a scikit-fem tet mesh (``MeshTet`` or ``MeshTet2``)."""
+    if element not in ELEMENTS:
+        raise ValueError(f'"{element}" is not an element; choose one of: {", ".join(ELEMENTS)}')
+    if element == "P1":
+        return Discretisation(element, skfem.Basis(mesh, ElementVector(ElementTetP1()), intorder=intorder or 2))
+    ubasis = skfem.Basis(mesh, ElementVector(ElementTetP2()), intorder=intorder or 4)
+    if element == "P2":
+        return Discretisation(element, ubasis)
+    return Discretisation(element, ubasis, ubasis.with_element(ElementTetP1()))
+
+
+def _per_qp(values, basis: skfem.Basis) -> np.ndarray:
+    """Per-element values (T,) or a scalar as (T, n_qp) coefficients."""
+    v = np.broadcast_to(np.asarray(values, dtype=float), (basis.mesh.nelements,))
+    return np.repeat(v[:, None], basis.X.shape[1], axis=1)
+
+
+def assemble(d: Discretisation, lam, mu) -> sp.csr_matrix:
+    """The system matrix: stiffness (P1, P2) or the symmetric saddle-point block matrix (P2P1),
+    ordered [u; p]. lam, mu: Pa, scalars or per element (T,)."""
+    lam_q, mu_q = _per_qp(lam, d.u), _per_qp(mu, d.u)
+    if d.p is None:
+        return skfem.asm(elasticity_form, d.u, lam=lam_q, mu=mu_q).tocsr()
+    d.pressure_scale = float(np.max(mu))
+    s = d.pressure_scale
+    a = skfem.asm(deviatoric_form, d.u, mu=mu_q)
+    b = skfem.asm(divergence_form, d.p, d.u)  # (n_u, n_p)
+    c = skfem.asm(pressure_mass_form, d.p, lam=_per_qp(lam, d.p))
+    return sp.bmat([[a, s * b], [s * b.T, -(s * s) * c]], format="csr")
+
+
+def split(d: Discretisation, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """(displacement DOFs, pressure DOFs in Pa or None) of a solution vector."""
+    if d.p is None:
+        return x[: d.n_u], None
+    return x[: d.n_u], d.pressure_scale * x[d.n_u :]
+
+
+def body_force(d: Discretisation, f) -> np.ndarray:
+    """Load vector of a body force density f(x) -> (3, ...) N/m^3, padded with zeros for the pressure."""
+    rhs = skfem.asm(body_force_form(f), d.u)
+    return np.concatenate([rhs, np.zeros(d.n_dofs - d.n_u)])
+
+
+def solve_static(K: sp.spmatrix, rhs: np.ndarray, fixed: np.ndarray, values: np.ndarray | None = None) -> np.ndarray:
+    """Solve K x = rhs with x[fixed] = values (default 0). Returns the full x.
+
+    Direct sparse LU (SuperLU): the saddle-point matrix of P2P1 is indefinite, so no Cholesky here.
+    """
+    x = np.zeros(K.shape[0])
+    if values is not None:
+        x[fixed] = values
+    free = np.setdiff1d(np.arange(K.shape[0]), fixed)
+    Kff = K[free][:, free].tocsc()
+    b = rhs[free] - K[free][:, fixed] @ x[fixed]
+    x[free] = spla.spsolve(Kff, b)
+    if not np.all(np.isfinite(x)):
+        raise FloatingPointError("the linear solve produced NaN or Inf: the system is singular (check the boundary conditions)")
+    return x
+
+
+def element_lame(layer_fraction: np.ndarray, lame_by_layer) -> tuple[np.ndarray, np.ndarray]:
+    """Per-element (lambda, mu) (T,) as the volume-fraction-weighted mean of each layer's.
+
+    layer_fraction: (T, 3) absorber, ML, core. lame_by_layer: three (lambda, mu) pairs in that order.
+    """
+    lam = np.asarray([l for l, _ in lame_by_layer], dtype=float)
+    mu = np.asarray([m for _, m in lame_by_layer], dtype=float)
+    return layer_fraction @ lam, layer_fraction @ mu
