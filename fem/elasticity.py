@@ -51,6 +51,8 @@ __all__ = [
     "solve_static",
     "split",
     "element_lame",
+    "dof_components",
+    "facet_indices",
 ]
 
 ELEMENTS = ("P1", "P2", "P2P1")
@@ -191,6 +193,33 @@ def solve_static(K: sp.spmatrix, rhs: np.ndarray, fixed: np.ndarray, values: np.
     if not np.all(np.isfinite(x)):
         raise FloatingPointError("the linear solve produced NaN or Inf: the system is singular (check the boundary conditions)")
     return x
+
+
+def dof_components(basis: skfem.Basis) -> np.ndarray:
+    """(N,) the displacement component (0, 1, 2) of each DOF of a vector P1/P2 basis."""
+    comp = np.full(basis.N, -1)
+    for name in ("nodal_dofs", "edge_dofs"):
+        arr = getattr(basis, name)
+        if arr.size:
+            for c in range(3):
+                comp[arr[c]] = c
+    if np.any(comp < 0):
+        raise ValueError("dof_components expects a vector P1 or P2 basis")
+    return comp
+
+
+def facet_indices(skmesh, faces: np.ndarray) -> np.ndarray:
+    """scikit-fem facet indices of boundary triangles given by their vertices (F, 3)."""
+    theirs = np.sort(skmesh.facets.T, axis=1)
+    order = np.lexsort(theirs.T[::-1])
+    keys = theirs[order]
+    want = np.sort(np.asarray(faces), axis=1)
+    pos = np.searchsorted(keys.view([("a", keys.dtype), ("b", keys.dtype), ("c", keys.dtype)]).ravel(),
+                          want.astype(keys.dtype).view([("a", keys.dtype), ("b", keys.dtype), ("c", keys.dtype)]).ravel())
+    found = order[np.minimum(pos, len(order) - 1)]
+    if not np.array_equal(theirs[found], want):
+        raise ValueError("some faces are not facets of this mesh")
+    return found
 
 
 def element_lame(layer_fraction: np.ndarray, lame_by_layer) -> tuple[np.ndarray, np.ndarray]:

@@ -38,6 +38,7 @@ __all__ = [
     "project_to_surface",
     "project_onto_pieces",
     "project_edge_midpoints",
+    "midpoints_on_shared_pieces",
     "solid_below_depth",
     "outer_surface",
     "emitting_surface",
@@ -191,6 +192,46 @@ class RodArray:
         rod = self.rod_of(points)
         r = np.linalg.norm(points[:, :2] - self.centres_m[rod], axis=1)
         return rod, r
+
+    # -- the body protocol of fem.mesh.build_mesh (see fem.mesh.MeshableBody) -----------------
+    @property
+    def layer_interfaces_m(self) -> tuple[float, ...]:
+        """Depths under the top surface where the layer changes (absorber/ML, ML/core)."""
+        return tuple(s for s in (self.absorber_m, self.core_depth_m) if s > 0)
+
+    def outer_surface(self, segments: int = 48):
+        return outer_surface(self, segments)
+
+    def depth_below_top(self, points: np.ndarray) -> np.ndarray:
+        return depth_below_top(self, points)
+
+    def layer_index(self, points: np.ndarray) -> np.ndarray:
+        return layer_index(self, points)
+
+    def classify_boundary(self, points: np.ndarray):
+        return classify_boundary(self, points)
+
+    def project_to_surface(self, points: np.ndarray, edge_tol_m: float = 0.0) -> np.ndarray:
+        return project_to_surface(self, points, edge_tol_m)
+
+    def project_edge_midpoints(self, a: np.ndarray, b: np.ndarray, tol_m: float) -> np.ndarray:
+        return project_edge_midpoints(self, a, b, tol_m)
+
+    def region_of(self, points: np.ndarray) -> np.ndarray:
+        """(M,) rod index of points above the base, -1 in the base."""
+        points = np.asarray(points, dtype=float)
+        return np.where(points[:, 2] > self.base_thickness_m, self.rod_of(points), -1).astype(np.int32)
+
+    def check_regions(self, points: np.ndarray, tets: np.ndarray, volumes: np.ndarray) -> str | None:
+        """A problem with a candidate mesh's parts (a rod missing volume), or None."""
+        centroid = points[tets].mean(axis=1)
+        in_rod = centroid[:, 2] > self.base_thickness_m
+        per_rod = np.bincount(self.rod_of(centroid[in_rod]), weights=volumes[in_rod], minlength=self.n_rods)
+        exact = math.pi * self.rod_radius_m**2 * self.rod_height_m
+        worst = int(np.argmax(np.abs(per_rod / exact - 1)))
+        if abs(per_rod[worst] / exact - 1) > 0.06:
+            return f"rod {worst} has {100 * (per_rod[worst] / exact - 1):+.1f} % of its analytic volume"
+        return None
 
 
 def depth_below_top(g: RodArray, points: np.ndarray) -> np.ndarray:
@@ -347,16 +388,31 @@ def project_edge_midpoints(g: RodArray, a: np.ndarray, b: np.ndarray, tol_m: flo
     far the chord sags. An edge that crosses from one piece to another (a chamfer of a sharp edge)
     gets its middle projected to the nearest surface point.
     """
+    return midpoints_on_shared_pieces(
+        lambda p: _piece_distances(g, p),
+        lambda p, tol: project_to_surface(g, p, tol),
+        lambda p, pieces, rod, tol: project_onto_pieces(g, p, pieces, rod, tol),
+        a,
+        b,
+        tol_m,
+        rod_pieces=(FaceTag.ROD_SIDE, FaceTag.ROD_TIP),
+    )
+
+
+def midpoints_on_shared_pieces(distances, project, onto_pieces, a, b, tol_m, rod_pieces=()):
+    """Generic rule of :func:`project_edge_midpoints` for any body given as three functions:
+    ``distances(p) -> (d (M, K), part (M,))``, ``project(p, tol)`` and
+    ``onto_pieces(p, pieces (M, K) bool, part (M,), tol)``. For the pieces in ``rod_pieces`` both
+    ends must also belong to the same part (rod)."""
     mid = 0.5 * (a + b)
-    da, rod_a = _piece_distances(g, a)
-    db, rod_b = _piece_distances(g, b)
-    _, rod_m = _piece_distances(g, mid)
+    da, part_a = distances(a)
+    db, part_b = distances(b)
     common = (da <= tol_m) & (db <= tol_m)
-    # Both ends on one rod's surfaces must mean that rod (not its neighbour's cell).
-    common[:, [FaceTag.ROD_SIDE, FaceTag.ROD_TIP]] &= (rod_a == rod_b)[:, None]
-    out = project_to_surface(g, mid, edge_tol_m=tol_m)
+    if rod_pieces:
+        common[:, list(rod_pieces)] &= (part_a == part_b)[:, None]
+    out = project(mid, tol_m)
     shared = common.any(axis=1)
-    out[shared] = project_onto_pieces(g, mid[shared], common[shared], rod_a[shared], tol_m)
+    out[shared] = onto_pieces(mid[shared], common[shared], part_a[shared], tol_m)
     return out
 
 

@@ -153,7 +153,7 @@ def _l2_error(d, u) -> float:
 
     @Functional
     def err(w):
-        e = w.uh.value - _exact(w.x)
+        e = w.uh - _exact(w.x)
         return e[0] ** 2 + e[1] ** 2 + e[2] ** 2
 
     return float(np.sqrt(err.assemble(d.u, uh=uh)))
