@@ -205,8 +205,48 @@ SOLVERS = {
 
 
 # ------------------------------------------------------------------------------------ worker
-def _maxrss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+def _proc_status_kb(key: str) -> float | None:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return float(line.split()[1])
+    except OSError:
+        pass
+    return None
+
+
+def _reset_peak_rss() -> bool:
+    """Reset the kernel's peak-RSS mark (VmHWM, and with it ru_maxrss) of this process (Linux >= 4.0)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def _peak_rss_mb() -> float:
+    hwm = _proc_status_kb("VmHWM")
+    return (hwm if hwm is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) / 1024.0
+
+
+def _current_rss_mb() -> float:
+    rss = _proc_status_kb("VmRSS")
+    return (rss if rss is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) / 1024.0
+
+
+def _timed(fn, repeats: int, budget_s: float):
+    """Median time of up to `repeats` calls of fn(); stops repeating once the calls took budget_s.
+    Returns (median s, runs, last result)."""
+    times, res = [], None
+    for _ in range(repeats):
+        res = None
+        gc.collect()
+        t0 = time.perf_counter()
+        res = fn()
+        times.append(time.perf_counter() - t0)
+        if sum(times) > budget_s:
+            break
+    return statistics.median(times), len(times), res
 
 
 def _relres(K, X, B) -> float:
@@ -230,7 +270,7 @@ def _blas_of_process() -> list[str]:
     return sorted(libs)
 
 
-def worker(element: str, name: str, data_dir: Path, repeats: int) -> dict:
+def worker(element: str, name: str, data_dir: Path, repeats: int, budget_s: float = 20.0) -> dict:
     factory, module, _, _ = SOLVERS[name]
     try:
         __import__(module)
@@ -240,37 +280,29 @@ def worker(element: str, name: str, data_dir: Path, repeats: int) -> dict:
     with np.load(data_dir / f"rhs_{element}.npz") as z:
         b, B = z["b"], z["B"]
     gc.collect()
-    rss0 = _maxrss_mb()
+    rss0 = _current_rss_mb()
+    exact_peak = _reset_peak_rss()
+    peak0 = _peak_rss_mb()
     info: dict = {}
-    slow = name == "spsolve" or name.startswith("cg")
-    t_fac, solve = [], None
-    for _ in range(repeats):
-        solve = None
-        gc.collect()
-        t0 = time.perf_counter()
-        solve = factory(K, info)
-        t_fac.append(time.perf_counter() - t0)
-    t1, x = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        x = solve(b)
-        t1.append(time.perf_counter() - t0)
+    t_fac, n_fac, solve = _timed(lambda: factory(K, info), repeats, budget_s)
+    t1, n1, x = _timed(lambda: solve(b), repeats, budget_s)
     res1 = _relres(K, x, b)
     iters1 = list(info.get("iterations", []))
-    # spsolve and CG redo everything per right-hand side: one timed block is enough for them.
-    t25, X = [], None
-    for _ in range(1 if slow else repeats):
-        t0 = time.perf_counter()
-        X = solve(B)
-        t25.append(time.perf_counter() - t0)
-    res25 = _relres(K, X, B)
+    if name.startswith("cg") and t1 * B.shape[1] > 2 * budget_s:
+        t25, n25, X, res25 = t1 * B.shape[1], 0, None, None  # estimated: one CG per right-hand side
+    else:
+        t25, n25, X = _timed(lambda: solve(B), repeats, budget_s)
+        res25 = _relres(K, X, B)
     out = {
         "status": "ok",
-        "factor_s": statistics.median(t_fac) if name != "spsolve" else None,
-        "solve1_s": statistics.median(t1),
-        "solve25_s": statistics.median(t25),
-        "solve25_runs": len(t25),
-        "peak_mem_mb": _maxrss_mb() - rss0,
+        "factor_s": t_fac if name != "spsolve" else None,
+        "factor_runs": n_fac,
+        "solve1_s": t1,
+        "solve1_runs": n1,
+        "solve25_s": t25,
+        "solve25_runs": n25,
+        "peak_mem_mb": _peak_rss_mb() - (rss0 if exact_peak else peak0),
+        "peak_mem_exact": exact_peak,
         "relres": res1,
         "relres25_max": res25,
         "libs": _blas_of_process(),
@@ -358,7 +390,7 @@ def _fmt_t(s):
     return f"{1e3 * s:.1f} ms" if s < 1.0 else f"{s:.2f} s"
 
 
-def table(rows: list[dict], sizes: dict) -> str:
+def table(rows: list[dict], sizes: dict, repeats: int) -> str:
     lines = ["| matrix | solver | factor | solve 1 rhs | solve 25 rhs | peak mem MB | factor nnz | rel. residual | notes |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -378,8 +410,11 @@ def table(rows: list[dict], sizes: dict) -> str:
             notes.append(f"{r['negative_pivots']} neg. pivots, min |d|/max |d| {r['min_abs_pivot_rel']:.1e}")
         if r["solver"] == "spsolve":
             notes.append("times include factorisation")
-        if r.get("solve25_runs", 3) == 1 and r["solver"] != "spsolve":
-            notes.append("25-rhs: 1 run")
+        if r["solve25_runs"] == 0:
+            notes.append("25-rhs time estimated as 25 x 1-rhs")
+        runs = [r["factor_runs"], r["solve1_runs"], r["solve25_runs"]]
+        if min(x for x in runs if x) < repeats:
+            notes.append("runs " + "/".join(str(x) for x in runs))
         nnz = f"{r['factor_nnz'] / 1e6:.1f} M" if r.get("factor_nnz") else "–"
         lines.append(f"| {mat} | {r['solver']} | {_fmt_t(r['factor_s'])} | {_fmt_t(r['solve1_s'])} | {_fmt_t(r['solve25_s'])} | "
                      f"{r['peak_mem_mb']:.0f} | {nnz} | {r['relres']:.1e} | {'; '.join(notes)} |")
@@ -393,11 +428,13 @@ def main() -> None:
     ap.add_argument("--elements", nargs="+", default=["P1", "P2", "P2P1"])
     ap.add_argument("--solvers", nargs="+", default=list(SOLVERS), choices=list(SOLVERS))
     ap.add_argument("--timeout", type=float, default=240.0, help="seconds per (matrix, solver) subprocess")
+    ap.add_argument("--budget", type=float, default=20.0,
+                    help="stop repeating a measurement once its runs took this many seconds (CG: estimate 25 rhs beyond 2x this)")
     ap.add_argument("--worker", nargs=3, metavar=("ELEMENT", "SOLVER", "DATA_DIR"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
         el, name, data_dir = args.worker
-        print("RESULT " + json.dumps(worker(el, name, Path(data_dir), args.repeats)), flush=True)
+        print("RESULT " + json.dumps(worker(el, name, Path(data_dir), args.repeats, args.budget)), flush=True)
         return
 
     out = Path(args.out)
@@ -413,7 +450,7 @@ def main() -> None:
             if el not in SOLVERS[name][2]:
                 continue
             t0 = time.perf_counter()
-            cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", el, name, str(data), "--repeats", str(args.repeats)]
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", el, name, str(data), "--repeats", str(args.repeats), "--budget", str(args.budget)]
             try:
                 p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
                 res = next((json.loads(l[7:]) for l in p.stdout.splitlines() if l.startswith("RESULT ")), None)
@@ -434,7 +471,7 @@ def main() -> None:
     print(f"mesh: {sizes['mesh']['tets']} tets, {sizes['mesh']['vertices']} vertices; "
           + "; ".join(f"{e}: n = {sizes[e]['n']}, nnz = {sizes[e]['nnz']}" for e in args.elements))
     print()
-    print(table(rows, sizes))
+    print(table(rows, sizes, args.repeats))
     print(f"\ntotal {total:.0f} s")
     (out / "bench_solvers.json").write_text(json.dumps({"machine": m, "sizes": sizes, "repeats": args.repeats,
                                                         "rows": rows, "total_s": total}, indent=2))

@@ -106,7 +106,7 @@ def test_bending_stress_one_radius_above_the_base(rod):
     d, u, p, lam, mu, _ = _solve(rod, "P2P1", 0.49, "beam")
     grad = d.u.interpolate(u).grad  # (3, 3, T, Q)
     sigma_zz = 2.0 * mu * grad[2, 2] + np.asarray(d.p.interpolate(p))
-    x = d.u.global_coordinates().value  # (3, T, Q)
+    x = np.asarray(d.u.global_coordinates())  # (3, T, Q)
     band = np.abs(x[2] - RADIUS) < 0.35e-3
     design = np.column_stack([np.ones(band.sum()), x[0][band], x[1][band], x[2][band] - RADIUS])
     # Unweighted: the quadrature points fill the band evenly (and the rule has a negative weight).
