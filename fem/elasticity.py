@@ -27,6 +27,7 @@ References
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -189,9 +190,17 @@ def solve_static(K: sp.spmatrix, rhs: np.ndarray, fixed: np.ndarray, values: np.
     free = np.setdiff1d(np.arange(K.shape[0]), fixed)
     Kff = K[free][:, free].tocsc()
     b = rhs[free] - K[free][:, fixed] @ x[fixed]
-    x[free] = spla.spsolve(Kff, b)
-    if not np.all(np.isfinite(x)):
-        raise FloatingPointError("the linear solve produced NaN or Inf: the system is singular (check the boundary conditions)")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", spla.MatrixRankWarning)  # judged below, with a clear message
+        x[free] = spla.spsolve(Kff, b)
+    # A singular system (e.g. no support against rigid motion) gives NaN, or finite garbage: check
+    # the residual of the solve itself.
+    residual = np.linalg.norm(Kff @ x[free] - b) / max(np.linalg.norm(b), 1e-300)
+    if not np.all(np.isfinite(x)) or residual > 1e-6:
+        raise FloatingPointError(
+            f"the linear system is singular (relative residual {residual:.2e}): is the body held against "
+            "rigid motion? Check the fixed DOFs (e.g. the base bottom)"
+        )
     return x
 
 
