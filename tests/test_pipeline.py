@@ -81,7 +81,7 @@ def test_run_writes_outputs_and_summary(tiny_mesh, cache, tmp_path):
     import meshio
 
     scene, g, mesh, report = tiny_mesh
-    res = pipeline.run(scene, out_dir=tmp_path, cache=cache, outputs=("geometry", "mesh"), progress=False, log=lambda m: None)
+    pipeline.run(scene, out_dir=tmp_path, cache=cache, outputs=("geometry", "mesh"), progress=False, log=lambda m: None)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["stages"]["mesh"]["action"] == "load"
     assert summary["stages"]["mesh"]["summary"]["mesh_hash"] == mesh.content_hash()
