@@ -4,19 +4,30 @@ Builds the clamped stiffness matrices of the default 5 x 5 sensor for P1, P2 and
 bottom fixed, E = 1.5 MPa, nu = 0.49), then, per matrix and per solver that applies, measures the
 median over --repeats runs of: the factorisation, one solve with one right-hand side, one solve
 with a block of 25 unit loads (a unit z force at the tip centre of each rod), the peak-memory
-growth (ru_maxrss) and the relative residual ||K x - b|| / ||b|| for a random b.
+growth over all of that and the relative residual ||K x - b|| / ||b|| for a random b
+(np.random.default_rng(0)).
 
 Cholesky-type solvers (CHOLMOD, cholespy, PARDISO SPD, CG) run on the SPD P1/P2 matrices only;
 the P2P1 saddle point [A B; B^T -C] gets SuperLU, spsolve, PARDISO symmetric indefinite and, for
-information, CHOLMOD's unpivoted LDL' (it exists because -C is negative definite for nu < 1/2,
-but nothing bounds its pivot growth, so it is not a production option).
+information, two unpivoted factorisations, CHOLMOD's LDL' and SuperLU in symmetric mode (they
+exist because -C is negative definite for nu < 1/2, the matrix is quasi-definite, but nothing
+bounds their pivot growth as nu -> 1/2, so they are not production options for P2P1).
 
 Each (matrix, solver) pair runs in a fresh subprocess, so a crash or a time-out costs one row and
-the peak memory is that solver's own. A solver whose package cannot be imported prints
-"not installed" and is skipped. The mesh is cached in --out (rebuilt only when missing).
+the peak memory (VmHWM reset through /proc/self/clear_refs, minus the RSS before) is that
+solver's own. A solver whose package cannot be imported prints "not installed" and is skipped.
+A measurement is repeated up to --repeats times but not once its runs took --budget seconds
+(SuperLU's COLAMD and spsolve take 10-25 s a run on P2), CG's 25-rhs time is 25 x its 1-rhs time
+when that would exceed 2 x --budget, and SuperLU with MMD and its default partial pivoting gets
+60 s on the large matrices (it did not finish in 400 s on P2; its symmetric mode takes 2 s). The mesh is cached in --out (rebuilt only when missing, ~45 s).
+About 6.5 minutes on 2 cores with the mesh cached (+45 s to mesh on a first run); two of them are
+SuperLU-MMD timing out on P2 and P2P1.
 
     python benchmarks/bench_solvers.py [--out out/bench] [--repeats 3] [--elements P1 P2 P2P1]
-                                      [--solvers NAME ...] [--timeout 240]
+                                      [--solvers NAME ...] [--timeout 240] [--budget 10] [--nu 0.49]
+
+Optional solver packages: scikit-sparse (CHOLMOD; with Debian's libsuitesparse-dev and, for
+speed, libopenblas0-pthread), pypardiso (MKL), cholespy.
 
 Writes --out/bench_solvers.json and prints a markdown table.
 """
@@ -33,6 +44,7 @@ import statistics
 import subprocess
 import sys
 import time
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +54,10 @@ ROOT = Path(__file__).resolve().parents[1]
 N_UNIT_LOADS = 25
 CG_RTOL = 1e-8
 CG_MAXITER = 20000
+CG_MAX_S = 150.0  # wall-clock cap of one CG solve (P2: ~6800 iterations, 25 s idle, 2 min under load)
+# per-solver subprocess time-outs that override --timeout on the large (P2, P2P1) matrices:
+# SuperLU with MMD on A^T + A takes 0.5 s on P1 but did not finish in 400 s on P2.
+LARGE_TIMEOUT_S = {"superlu-mmd-ata": 60.0}
 
 
 # ------------------------------------------------------------------------------------ solvers
@@ -49,12 +65,18 @@ CG_MAXITER = 20000
 # it may record extra facts (factor nonzeros, iterations, ...) in info.
 
 
-def _splu(permc_spec):
+def _splu(permc_spec, symmetric=False):
+    """scipy's SuperLU. symmetric: SuperLU's symmetric mode (the column order applied to the rows
+    too) with diag_pivot_thresh = 0, i.e. no row pivoting: right for SPD matrices, and for the
+    quasi-definite P2P1 matrix an unpivoted LDL'-like factorisation (same caveat as CHOLMOD's LDL').
+    With the default threshold 1.0, partial pivoting undoes the symmetric MMD order (P2: > 400 s)."""
+
     def factor(K, info):
         import scipy.sparse.linalg as spla
 
-        lu = spla.splu(K.tocsc(), permc_spec=permc_spec)
-        info["factor_nnz"] = int(lu.L.nnz + lu.U.nnz)
+        kw = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True)) if symmetric else {}
+        lu = spla.splu(K.tocsc(), permc_spec=permc_spec, **kw)
+        info["factor_nnz"] = int(lu.nnz)  # stored L + U entries (lu.L / lu.U would copy them: ~4 s on P2)
         return lu.solve
 
     return factor
@@ -72,8 +94,7 @@ def _cholmod_ldl(K, info):
     from sksparse.cholmod import cholesky
 
     f = cholesky(K.tocsc(), mode="simplicial")  # LDL' without pivoting (fill-reducing order only)
-    info["factor_nnz"] = int(f.L().nnz)
-    d = f.D()
+    d = f.D()  # (f.L() would convert to LL', which fails on an indefinite matrix; f.L_D() densifies)
     info["negative_pivots"] = int(np.sum(d < 0))
     info["min_abs_pivot_rel"] = float(np.min(np.abs(d)) / np.max(np.abs(d)))
     return f.solve_A
@@ -95,11 +116,15 @@ def _cholespy(K, info):
     return solve
 
 
-def _pardiso(mtype, saddle_options=False):
+def _pardiso(mtype, iparm: str = "explicit"):
     """MKL PARDISO via pypardiso's ctypes binding. Symmetric types get the upper triangle only.
 
-    pypardiso re-converts the index arrays on every call (an O(nnz) copy per solve), so the
-    solve goes through a thin subclass that converts them once."""
+    iparm: "defaults" leaves pypardiso's iparm(1) = 0, so MKL picks its defaults, which include two
+    steps of iterative refinement on every solve (iparm(8) = 2; each step is one more solve);
+    "explicit" sets iparm(1) = 1 with MKL's documented values and no refinement (iparm(8) = 0: only
+    when pivots were perturbed); "matching" adds symmetric scaling and weighted matching, MKL's
+    advice for saddle points. pypardiso re-converts the index arrays on every call (an O(nnz) copy
+    per solve), so the solve goes through a thin subclass that converts them once."""
 
     def factor(K, info):
         import pypardiso
@@ -131,15 +156,16 @@ def _pardiso(mtype, saddle_options=False):
         A = sp.triu(K, format="csr") if mtype in (2, -2) else K.tocsr()
         A.sort_indices()
         s = Solver(mtype=mtype)
-        if saddle_options:  # MKL's advice for saddle points: symmetric scaling + weighted matching
+        if iparm != "defaults":
             s.set_iparm(1, 1)    # use the iparm values below, not PARDISO's defaults
             s.set_iparm(2, 2)    # nested dissection (METIS)
-            s.set_iparm(8, 0)    # iterative refinement: default (2 steps when pivots were perturbed)
-            s.set_iparm(10, 8)   # pivot perturbation 1e-8 (symmetric indefinite default)
-            s.set_iparm(11, 1)   # scaling
-            s.set_iparm(13, 1)   # weighted matching
-            s.set_iparm(18, -1)  # report factor nonzeros
-            s.set_iparm(21, 1)   # Bunch-Kaufman pivoting
+            s.set_iparm(8, 0)    # iterative refinement only when pivots were perturbed
+            s.set_iparm(10, 13 if mtype == 2 else 8)  # pivot perturbation 1e-13 / 1e-8 (MKL's defaults)
+            s.set_iparm(18, -1)  # report the factor's nonzeros
+            s.set_iparm(21, 1)   # Bunch-Kaufman pivoting (symmetric indefinite)
+            if iparm == "matching":
+                s.set_iparm(11, 1)  # symmetric scaling
+                s.set_iparm(13, 1)  # symmetric weighted matching
         s.factorize(A)
         info["factor_nnz"] = int(s.get_iparm(18))
         if mtype == -2:
@@ -152,6 +178,8 @@ def _pardiso(mtype, saddle_options=False):
             info["refinement_steps"] = int(s.get_iparm(7))
             return x
 
+        # MKL keeps the factor until phase -1: free it with the solve function (pypardiso has no __del__)
+        weakref.finalize(solve, s.free_memory, True)
         return solve
 
     return factor
@@ -163,13 +191,23 @@ def _cg_jacobi(K, info):
     d = 1.0 / K.diagonal()
     M = spla.LinearOperator(K.shape, matvec=lambda x: d * x, dtype=float)
 
+    class OutOfTime(Exception):
+        pass
+
     def one(b):
-        it = [0]
+        it, last = [0], [np.zeros_like(b)]
+        t0 = time.perf_counter()
 
-        def count(_):
+        def count(xk):
             it[0] += 1
+            if time.perf_counter() - t0 > CG_MAX_S:
+                last[0] = xk.copy()
+                raise OutOfTime
 
-        x, flag = spla.cg(K, b, rtol=CG_RTOL, atol=0.0, maxiter=CG_MAXITER, M=M, callback=count)
+        try:
+            x, flag = spla.cg(K, b, rtol=CG_RTOL, atol=0.0, maxiter=CG_MAXITER, M=M, callback=count)
+        except OutOfTime:
+            x, flag = last[0], -1
         info.setdefault("iterations", []).append(it[0])
         if flag != 0:
             info["converged"] = False
@@ -193,12 +231,16 @@ def _spsolve(K, info):
 SOLVERS = {
     "superlu-colamd": (_splu("COLAMD"), "scipy", ("P1", "P2", "P2P1"), "scipy splu, default COLAMD order"),
     "superlu-mmd-ata": (_splu("MMD_AT_PLUS_A"), "scipy", ("P1", "P2", "P2P1"), "scipy splu, MMD on A^T+A"),
+    "superlu-mmd-sym": (_splu("MMD_AT_PLUS_A", symmetric=True), "scipy", ("P1", "P2", "P2P1"),
+                        "splu, MMD on A^T+A, SymmetricMode, diag_pivot_thresh 0 (no pivoting)"),
     "spsolve": (_spsolve, "scipy", ("P1", "P2", "P2P1"), "scipy spsolve (factor + solve every call)"),
     "cholmod": (_cholmod, "sksparse.cholmod", ("P1", "P2"), "scikit-sparse CHOLMOD supernodal LL'"),
     "cholespy": (_cholespy, "cholespy", ("P1", "P2"), "cholespy (CHOLMOD inside) CPU"),
-    "pardiso-spd": (_pardiso(2), "pypardiso", ("P1", "P2"), "MKL PARDISO mtype 2 (SPD)"),
-    "pardiso-sym-indef": (_pardiso(-2), "pypardiso", ("P2P1",), "MKL PARDISO mtype -2, default iparm"),
-    "pardiso-sym-indef-mw": (_pardiso(-2, saddle_options=True), "pypardiso", ("P2P1",), "mtype -2, scaling + weighted matching"),
+    "pardiso-spd": (_pardiso(2), "pypardiso", ("P1", "P2"), "MKL PARDISO mtype 2 (SPD), iparm set, no refinement"),
+    "pardiso-spd-defaults": (_pardiso(2, "defaults"), "pypardiso", ("P1", "P2"), "mtype 2 with pypardiso's iparm(1)=0 defaults"),
+    "pardiso-sym-indef": (_pardiso(-2), "pypardiso", ("P2P1",), "MKL PARDISO mtype -2, iparm set, no refinement"),
+    "pardiso-sym-indef-defaults": (_pardiso(-2, "defaults"), "pypardiso", ("P2P1",), "mtype -2 with pypardiso's defaults"),
+    "pardiso-sym-indef-mw": (_pardiso(-2, "matching"), "pypardiso", ("P2P1",), "mtype -2, + scaling and weighted matching"),
     "cholmod-ldl-unsafe": (_cholmod_ldl, "sksparse.cholmod", ("P2P1",), "CHOLMOD simplicial LDL', no pivoting (informational)"),
     "cg-jacobi": (_cg_jacobi, "scipy", ("P1", "P2"), f"scipy cg, Jacobi, rtol {CG_RTOL:g}"),
 }
@@ -270,7 +312,7 @@ def _blas_of_process() -> list[str]:
     return sorted(libs)
 
 
-def worker(element: str, name: str, data_dir: Path, repeats: int, budget_s: float = 20.0) -> dict:
+def worker(element: str, name: str, data_dir: Path, repeats: int, budget_s: float = 10.0) -> dict:
     factory, module, _, _ = SOLVERS[name]
     try:
         __import__(module)
@@ -332,7 +374,14 @@ def machine() -> dict:
             "scipy": __import__("scipy").__version__}
 
 
-def build_matrices(out: Path, elements: list[str]) -> tuple[Path, dict]:
+def _loadavg() -> str | None:
+    try:
+        return Path("/proc/loadavg").read_text().split()[0]
+    except OSError:
+        return None
+
+
+def build_matrices(out: Path, elements: list[str], nu: float = 0.49) -> tuple[Path, dict]:
     from fem.elasticity import assemble, discretise, facet_indices, skfem_mesh
     from fem.geometry import FaceTag, RodArray
     from fem.materials.linear_elastic import lame_parameters
@@ -352,7 +401,7 @@ def build_matrices(out: Path, elements: list[str]) -> tuple[Path, dict]:
         mesh.save(mesh_path)
     sk = skfem_mesh(mesh.points, mesh.tets, mesh.edge_nodes, mesh.tet_edges)
     bottom = facet_indices(sk, mesh.faces[mesh.face_tag == FaceTag.BASE_BOTTOM])
-    lam, mu = lame_parameters(1.5e6, 0.49)
+    lam, mu = lame_parameters(1.5e6, nu)
     # the unit loads: z at the tip vertex nearest each rod's tip centre
     tip = mesh.face_tag == FaceTag.ROD_TIP
     tips = []
@@ -360,7 +409,10 @@ def build_matrices(out: Path, elements: list[str]) -> tuple[Path, dict]:
         verts = np.unique(mesh.faces[tip & (mesh.face_rod == r)])
         c = mesh.points[verts].mean(axis=0)
         tips.append(verts[np.argmin(np.linalg.norm(mesh.points[verts] - c, axis=1))])
-    sizes = {"mesh": {"tets": int(mesh.n_tets), "vertices": int(mesh.n_points), "rods": len(tips)}}
+    # fTetWild runs multi-threaded, so two meshings of the same scene can differ (17054 vs 16311
+    # tets seen): the hash says which mesh these numbers belong to.
+    sizes = {"mesh": {"tets": int(mesh.n_tets), "vertices": int(mesh.n_points), "rods": len(tips),
+                      "content_hash": mesh.content_hash(), "path": str(mesh_path)}}
     for element in elements:
         d = discretise(sk, element)
         K = assemble(d, lam, mu)
@@ -404,12 +456,16 @@ def table(rows: list[dict], sizes: dict, repeats: int) -> str:
             notes.append(f"{r['iterations']} it")
             if r.get("converged") is False:
                 notes.append("NOT converged")
+        if r.get("refinement_steps"):
+            notes.append(f"{r['refinement_steps']} refinement steps per solve")
         if "perturbed_pivots" in r:
             notes.append(f"{r['perturbed_pivots']} perturbed pivots, inertia +{r['inertia_pos_neg'][0]}/-{r['inertia_pos_neg'][1]}")
         if "negative_pivots" in r:
             notes.append(f"{r['negative_pivots']} neg. pivots, min |d|/max |d| {r['min_abs_pivot_rel']:.1e}")
         if r["solver"] == "spsolve":
             notes.append("times include factorisation")
+        if r["solver"] == "superlu-mmd-sym" and el == "P2P1":
+            notes.append("unpivoted")
         if r["solve25_runs"] == 0:
             notes.append("25-rhs time estimated as 25 x 1-rhs")
         runs = [r["factor_runs"], r["solve1_runs"], r["solve25_runs"]]
@@ -427,8 +483,9 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--elements", nargs="+", default=["P1", "P2", "P2P1"])
     ap.add_argument("--solvers", nargs="+", default=list(SOLVERS), choices=list(SOLVERS))
+    ap.add_argument("--nu", type=float, default=0.49, help="Poisson ratio (E = 1.5 MPa); e.g. 0.499999 to stress P2P1")
     ap.add_argument("--timeout", type=float, default=240.0, help="seconds per (matrix, solver) subprocess")
-    ap.add_argument("--budget", type=float, default=20.0,
+    ap.add_argument("--budget", type=float, default=10.0,
                     help="stop repeating a measurement once its runs took this many seconds (CG: estimate 25 rhs beyond 2x this)")
     ap.add_argument("--worker", nargs=3, metavar=("ELEMENT", "SOLVER", "DATA_DIR"), help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -440,8 +497,9 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     m = machine()
+    m["loadavg_start"] = _loadavg()
     t_start = time.perf_counter()
-    data, sizes = build_matrices(out, args.elements)
+    data, sizes = build_matrices(out, args.elements, args.nu)
     print(f"matrices built in {time.perf_counter() - t_start:.0f} s: "
           + ", ".join(f"{e} n={sizes[e]['n']} nnz={sizes[e]['nnz']}" for e in args.elements), file=sys.stderr)
     rows = []
@@ -451,14 +509,15 @@ def main() -> None:
                 continue
             t0 = time.perf_counter()
             cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", el, name, str(data), "--repeats", str(args.repeats), "--budget", str(args.budget)]
+            timeout = LARGE_TIMEOUT_S.get(name, args.timeout) if el != "P1" else args.timeout
             try:
-                p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
+                p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
                 res = next((json.loads(l[7:]) for l in p.stdout.splitlines() if l.startswith("RESULT ")), None)
                 if res is None:
                     tail = (p.stderr.strip().splitlines() or [""])[-1]
                     res = {"status": f"failed (exit {p.returncode})", "error": tail}
             except subprocess.TimeoutExpired:
-                res = {"status": f"timed out (> {args.timeout:.0f} s)"}
+                res = {"status": f"timed out (> {timeout:.0f} s)"}
             res.update(element=el, solver=name, description=SOLVERS[name][3], wall_s=time.perf_counter() - t0)
             if res["status"] == "not installed":
                 print(f"{el:5s} {name:22s} not installed ({res['error']})", file=sys.stderr)
@@ -466,14 +525,15 @@ def main() -> None:
                 print(f"{el:5s} {name:22s} {res['status']} in {res['wall_s']:.0f} s", file=sys.stderr)
             rows.append(res)
     total = time.perf_counter() - t_start
-    print(f"sparse solvers, default sensor (5 x 5 rods), E = 1.5 MPa, nu = 0.49, base bottom clamped; "
+    m["loadavg_end"] = _loadavg()
+    print(f"sparse solvers, default sensor (5 x 5 rods), E = 1.5 MPa, nu = {args.nu:g}, base bottom clamped; "
           f"median of {args.repeats}; {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m['numpy']}, scipy {m['scipy']}")
     print(f"mesh: {sizes['mesh']['tets']} tets, {sizes['mesh']['vertices']} vertices; "
           + "; ".join(f"{e}: n = {sizes[e]['n']}, nnz = {sizes[e]['nnz']}" for e in args.elements))
     print()
     print(table(rows, sizes, args.repeats))
-    print(f"\ntotal {total:.0f} s")
-    (out / "bench_solvers.json").write_text(json.dumps({"machine": m, "sizes": sizes, "repeats": args.repeats,
+    print(f"\ntotal {total:.0f} s; load average (1 min) {m['loadavg_start']} at start, {m['loadavg_end']} at end")
+    (out / "bench_solvers.json").write_text(json.dumps({"machine": m, "sizes": sizes, "nu": args.nu, "repeats": args.repeats,
                                                         "rows": rows, "total_s": total}, indent=2))
 
 
