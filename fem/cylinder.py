@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -29,7 +30,8 @@ class Cylinder:
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{name} = {v}: must be finite and > 0")
 
-    layer_interfaces_m: tuple[float, ...] = ()
+    #: One material throughout: no layer interfaces.
+    layer_interfaces_m: ClassVar[tuple[float, ...]] = ()
 
     # -- analytic measures -------------------------------------------------------------------
     def volume_m3(self) -> float:

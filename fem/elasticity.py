@@ -219,13 +219,17 @@ def dof_components(basis: skfem.Basis) -> np.ndarray:
 
 def facet_indices(skmesh, faces: np.ndarray) -> np.ndarray:
     """scikit-fem facet indices of boundary triangles given by their vertices (F, 3)."""
-    theirs = np.sort(skmesh.facets.T, axis=1)
-    order = np.lexsort(theirs.T[::-1])
-    keys = theirs[order]
-    want = np.sort(np.asarray(faces), axis=1)
-    pos = np.searchsorted(keys.view([("a", keys.dtype), ("b", keys.dtype), ("c", keys.dtype)]).ravel(),
-                          want.astype(keys.dtype).view([("a", keys.dtype), ("b", keys.dtype), ("c", keys.dtype)]).ravel())
-    found = order[np.minimum(pos, len(order) - 1)]
+    n = np.int64(skmesh.nvertices)
+
+    def keys(tri):
+        t = np.sort(np.asarray(tri, dtype=np.int64), axis=1)
+        return (t[:, 0] * n + t[:, 1]) * n + t[:, 2]
+
+    theirs = keys(skmesh.facets.T)
+    order = np.argsort(theirs)
+    want = keys(faces)
+    pos = np.minimum(np.searchsorted(theirs, want, sorter=order), len(order) - 1)
+    found = order[pos]
     if not np.array_equal(theirs[found], want):
         raise ValueError("some faces are not facets of this mesh")
     return found

@@ -23,7 +23,7 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
 
 from mlsim.errors import Problem, SceneError
-from mlsim.materials import MATERIAL_PROPERTIES, SHIPPED_MATERIALS, Material
+from mlsim.materials import MATERIAL_PROPERTIES, SHIPPED_MATERIALS, Material, Quantity
 
 __all__ = [
     "Scene",
@@ -437,8 +437,6 @@ def resolve_material(name: str, overrides: dict[str, MaterialOverride]) -> Mater
     values = overrides[name].model_dump(exclude={"description"}) if name in overrides else {}
     if name in SHIPPED_MATERIALS:
         return SHIPPED_MATERIALS[name].with_overrides(values)
-    from mlsim.materials import Quantity
-
     unknown = Quantity(None, "not given in the scene")
     base = Material(
         name=name,

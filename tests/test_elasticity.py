@@ -7,7 +7,7 @@ import pytest
 import skfem
 from skfem import Functional
 
-from fem.elasticity import ELEMENTS, assemble, body_force, discretise, element_lame, solve_static, split
+from fem.elasticity import ELEMENTS, assemble, body_force, discretise, dof_components, element_lame, solve_static, split
 from fem.materials import material_model
 from fem.materials import linear_elastic as le
 from fem.materials import neo_hookean as nh
@@ -86,18 +86,6 @@ def test_element_lame_is_fraction_weighted():
 
 
 # -------------------------------------------------------------------------------- discretisation
-def _dof_components(basis) -> np.ndarray:
-    comp = np.full(basis.N, -1)
-    for name in ("nodal_dofs", "edge_dofs"):
-        arr = getattr(basis, name)
-        if arr.size == 0:
-            continue
-        for c in range(3):
-            comp[arr[c]] = c
-    assert (comp >= 0).all()
-    return comp
-
-
 def _distorted_cube(n: int, rng, element: str, vertex_jitter=0.04, edge_jitter=0.01):
     """Unit cube, n intervals a side, interior vertices moved and (for P2) interior edges curved."""
     m = skfem.MeshTet.init_tensor(*[np.linspace(0, 1, n + 1)] * 3)
@@ -130,7 +118,7 @@ def test_patch_test_reproduces_linear_fields(element, nu):
     assert _jacobian_sign_is_constant_per_element(d)  # a valid (unfolded) patch
     a, b = rng.normal(size=(3, 3)), rng.normal(size=3)
     lam, mu = le.lame_parameters(1.0e6, nu)
-    exact = (a @ d.u.doflocs + b[:, None])[_dof_components(d.u), np.arange(d.u.N)]
+    exact = (a @ d.u.doflocs + b[:, None])[dof_components(d.u), np.arange(d.u.N)]
     fixed = d.u.get_dofs().all()
     x = solve_static(assemble(d, lam, mu), np.zeros(d.n_dofs), fixed, exact[fixed])
     u, p = split(d, x)
@@ -177,7 +165,7 @@ def test_manufactured_solution_converges_at_the_theoretical_order(element):
             mesh = skfem.MeshTet2.from_mesh(mesh)
         d = discretise(mesh, element)
         fixed = d.u.get_dofs().all()
-        boundary = _exact(d.u.doflocs)[_dof_components(d.u), np.arange(d.u.N)][fixed]
+        boundary = _exact(d.u.doflocs)[dof_components(d.u), np.arange(d.u.N)][fixed]
         x = solve_static(assemble(d, lam, mu), body_force(d, lambda x: mu * np.pi**2 * _exact(x)), fixed, boundary)
         u, p = split(d, x)
         errors.append(_l2_error(d, u))
