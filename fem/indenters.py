@@ -9,10 +9,12 @@ closest surface point, i.e. the direction the indenter pushes a penetrating poin
 
 Shapes (SPEC 1.5 and the scene's ``load.indenter``):
 
-- ``flat``: a circular punch of radius a (its face at z = 0, its body above), e.g. the 5 cm^2 probe;
+- ``flat``: a circular punch of radius a (its face at z = 0, its body above), e.g. the 5 cm^2 probe,
+  its rim rounded with ``edge_radius_m`` (scene default 0.5 mm: a machined probe's edge is never
+  sharp, and a sharp rim has no normal, which stalls the contact Newton on its leading edge);
 - ``sphere``: radius rho, centre at z = rho;
 - ``cylinder``: radius rho and length l lying along x (the M8 screw), axis at z = rho;
-- ``box``: size (sx, sy, sz), bottom face at z = 0.
+- ``box``: size (sx, sy, sz), bottom face at z = 0, edges rounded with ``edge_radius_m``.
 
 The distances are exact Euclidean distances to these solids (the flat punch is a cylinder of
 height h; the lying cylinder has flat end caps). They are 1-Lipschitz and their gradients, the
@@ -25,13 +27,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["IndenterShape", "Pose", "signed_distance_local", "gap_and_normal", "shape_from_scene"]
+__all__ = ["IndenterShape", "Pose", "signed_distance_local", "gap_and_normal", "rigid_motion", "shape_from_scene"]
 
 
 @dataclass(frozen=True)
 class IndenterShape:
     kind: str  # "flat" | "sphere" | "cylinder" | "box"
     size_m: tuple[float, ...]  # flat: (radius, height); sphere: (radius,); cylinder: (radius, length); box: (sx, sy, sz)
+    edge_radius_m: float = 0.0  # flat and box: the edges rounded with this radius (a sharp edge has no normal)
 
     def __post_init__(self):
         expected = {"flat": 2, "sphere": 1, "cylinder": 2, "box": 3}
@@ -39,6 +42,12 @@ class IndenterShape:
             raise ValueError(f'"{self.kind}" is not an indenter shape; choose one of: {", ".join(expected)}')
         if len(self.size_m) != expected[self.kind] or not all(np.isfinite(s) and s > 0 for s in self.size_m):
             raise ValueError(f"{self.kind} indenter size_m = {self.size_m}: needs {expected[self.kind]} finite values > 0")
+        if self.kind in ("flat", "box"):
+            limit = min(self.size_m[0], self.size_m[1] / 2) if self.kind == "flat" else min(self.size_m) / 2
+        else:
+            limit = 0.0
+        if not (0.0 <= self.edge_radius_m < limit or self.edge_radius_m == 0.0):
+            raise ValueError(f"{self.kind} indenter edge_radius_m = {self.edge_radius_m}: must be >= 0 and below {limit} (half the smallest size)")
 
 
 @dataclass(frozen=True)
@@ -67,9 +76,11 @@ def _box(p, half):
 def signed_distance_local(shape: IndenterShape, p: np.ndarray) -> np.ndarray:
     """Signed distance (M,) of points (M, 3) given in the indenter's own frame."""
     p = np.asarray(p, dtype=float)
+    re = shape.edge_radius_m
     if shape.kind == "flat":
         radius, height = shape.size_m
-        return _capped_cylinder_z(p, radius, height)
+        # rounded edges: the shrunk solid's distance minus the rounding radius (exact)
+        return _capped_cylinder_z(p - [0.0, 0.0, re], radius - re, height - 2 * re) - re
     if shape.kind == "sphere":
         (radius,) = shape.size_m
         return np.linalg.norm(p - [0.0, 0.0, radius], axis=1) - radius
@@ -79,13 +90,25 @@ def signed_distance_local(shape: IndenterShape, p: np.ndarray) -> np.ndarray:
         q = np.column_stack([p[:, 1], p[:, 2] - radius, p[:, 0] + length / 2])
         return _capped_cylinder_z(q, radius, length)
     sx, sy, sz = shape.size_m
-    return _box(p - [0.0, 0.0, sz / 2], np.array([sx, sy, sz]) / 2)
+    return _box(p - [0.0, 0.0, sz / 2], np.array([sx, sy, sz]) / 2 - re) - re
 
 
 def _to_local(pose: Pose, X: np.ndarray) -> np.ndarray:
     c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
     d = np.asarray(X, dtype=float) - np.asarray(pose.position_m)
     return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]])
+
+
+def _from_local(pose: Pose, p: np.ndarray) -> np.ndarray:
+    c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
+    return np.column_stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1], p[:, 2]]) + np.asarray(pose.position_m)
+
+
+def rigid_motion(old: Pose, new: Pose, X: np.ndarray) -> np.ndarray:
+    """Displacement (M, 3) of the indenter's material points at X (M, 3) from pose ``old`` to ``new``
+    (what a point of the body sticking to the indenter is dragged by)."""
+    X = np.asarray(X, dtype=float)
+    return _from_local(new, _to_local(old, X)) - X
 
 
 def gap_and_normal(shape: IndenterShape, pose: Pose, X: np.ndarray, h: float | None = None):
@@ -111,9 +134,9 @@ def shape_from_scene(indenter) -> IndenterShape:
     """The shape of a validated scene indenter (:mod:`mlsim.scene`, millimetres) in metres."""
     mm = 1e-3
     if indenter.shape == "flat":
-        return IndenterShape("flat", (indenter.tip_diameter_mm / 2 * mm, indenter.height_mm * mm))
+        return IndenterShape("flat", (indenter.tip_diameter_mm / 2 * mm, indenter.height_mm * mm), indenter.edge_radius_mm * mm)
     if indenter.shape == "sphere":
         return IndenterShape("sphere", (indenter.diameter_mm / 2 * mm,))
     if indenter.shape == "cylinder":
         return IndenterShape("cylinder", (indenter.diameter_mm / 2 * mm, indenter.length_mm * mm))
-    return IndenterShape("box", tuple(s * mm for s in indenter.size_mm))
+    return IndenterShape("box", tuple(s * mm for s in indenter.size_mm), indenter.edge_radius_mm * mm)

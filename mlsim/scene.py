@@ -153,6 +153,7 @@ class FlatIndenter(_Indenter):
     diameter_mm: Pos | None = None
     tip_area_mm2: Pos | None = None
     height_mm: Pos = 10.0
+    edge_radius_mm: NonNeg = 0.5  # not given; the rim's rounding (a sharp rim has no contact normal)
 
     @model_validator(mode="after")
     def _one_size(self):
@@ -183,6 +184,7 @@ class SphereIndenter(_Indenter):
 class BoxIndenter(_Indenter):
     shape: Literal["box"]
     size_mm: tuple[Pos, Pos, Pos]
+    edge_radius_mm: NonNeg = 0.5  # not given; the edges' rounding
 
 
 Indenter = Annotated[
@@ -352,9 +354,18 @@ class MeshFidelity(_Model):
 
 
 class SolveFidelity(_Model):
+    """Mechanics solve: tier, elements, time sub-steps and contact discretisation (see fem.quasistatic)."""
+
     tier: Literal["reduced", "linear", "nonlinear"] = "linear"
     element_order: Literal[1, 2] = 2
+    # "auto": mixed P2-P1 when order 2 and any layer has nu >= 0.45 (locking-free), else displacement only
+    formulation: Literal["auto", "displacement", "mixed"] = "auto"
     substeps: Annotated[int, Strict(), Field(ge=1, le=1000)] = 1
+    contact_band_mm: NonNeg = 2.0  # rod side faces this far below the tips may touch the indenter
+    penalty_factor: Annotated[float, Strict(), Field(ge=1.0, le=1e6)] = 100.0  # contact stiffness = factor * E / h
+    patches_per_tip: Annotated[int, Strict(), Field(ge=1, le=64)] = 7  # reduced tier
+    patches_per_side: Annotated[int, Strict(), Field(ge=1, le=64)] = 8  # reduced tier
+    gravity: Bool = True
 
 
 class RenderFidelity(_Model):

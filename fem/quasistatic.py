@@ -1,0 +1,463 @@
+"""Quasi-static time stepping of the rod array under a moving rigid indenter: the ``linear`` and
+``reduced`` tiers.
+
+Both tiers share the linear elastic body (:class:`LinearBody`: assembled once, factorised once,
+base bottom clamped, optional gravity) and the contact on condensed compliance
+(:mod:`fem.condensed`). They differ in the contact points and in how the field is recovered:
+
+- ``linear``: every vertex of the contact faces near the indenter's path is a contact point; the
+  compliance C = W^T K^-1 W is computed by blocks of solves with the factorised matrix. Each step
+  solves the contact on C, and the whole field follows from one solve per step with the contact
+  forces (done as one multi-right-hand-side call over the episode: the same arithmetic, batched).
+  The field is exact for the discretisation, up to the penalty.
+- ``reduced``: the contact points are grouped into patches (a few per rod tip, a few angular
+  sectors of the side band); the precompute stores the patch compliance and, per unit patch force,
+  the centroid stress of every tet and the displacement of every vertex. A step is then a small
+  contact solve plus a superposition, with no sparse solve. The patch contact is coarser than the
+  vertex contact: its error against ``linear`` is what ``mlsim accuracy`` reports.
+
+Time: frames at the camera's rate; each frame interval is split into ``substeps`` solves (friction
+is path-dependent; an indenter sliding 200 mm/s moves 6.7 mm per 30 FPS frame). Per step the
+outputs are the per-tet centroid Cauchy stress, von Mises stress and strain energy density, vertex
+displacements, the contact force per rod and in total, and the reaction at the clamped base; rates
+are backward differences over one step (:class:`Episode`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import skfem
+from skfem import LinearForm
+
+from fem import condensed, elasticity, fields, trajectory
+from fem.indenters import IndenterShape, Pose, shape_from_scene
+from fem.nonlinear import SolverError
+
+__all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "run_episode", "layer_materials"]
+
+GRAVITY_M_S2 = 9.80665
+
+
+@dataclass(frozen=True)
+class SolveSettings:
+    """Numerical choices of a solve (from the scene's ``fidelity.solve``)."""
+
+    tier: str = "linear"  # "reduced" | "linear"
+    element: str = "P2P1"  # "P1" | "P2" | "P2P1"
+    substeps: int = 1
+    contact_band_m: float = 2.0e-3  # rod side faces this far below the tips can be touched
+    penalty_factor: float = 100.0  # eps_n = eps_t = factor * E_contact / h
+    patches_per_tip: int = 7
+    patches_per_side: int = 8
+    gravity: bool = True
+    backend: str = "auto"
+    path_margin_m: float = 1.0e-3  # linear tier: contact points within this of the swept indenter
+
+    @classmethod
+    def from_scene(cls, scene) -> "SolveSettings":
+        f = scene.fidelity.solve
+        nu_max = max(scene.material(r).poisson_ratio.value for r in ("core", "ml_layer", "absorber"))
+        if f.element_order == 1:
+            element = "P1"
+        else:
+            element = "P2P1" if (f.formulation == "mixed" or (f.formulation == "auto" and nu_max >= 0.45)) else "P2"
+        return cls(tier=f.tier, element=element, substeps=f.substeps, contact_band_m=f.contact_band_mm * 1e-3,
+                   penalty_factor=f.penalty_factor, patches_per_tip=f.patches_per_tip, patches_per_side=f.patches_per_side,
+                   gravity=f.gravity)
+
+
+def layer_materials(scene):
+    """[(lambda, mu), ...] Pa and densities kg/m^3 of the absorber, ML and core layers, and the
+    contact layer's Young's modulus (the absorber's, or the ML layer's if there is no absorber)."""
+    from fem.materials.linear_elastic import lame_parameters
+
+    lame, rho = [], []
+    for region in ("absorber", "ml_layer", "core"):
+        mat = scene.material(region)
+        lame.append(tuple(float(v) for v in lame_parameters(mat.young_modulus_pa.value, mat.poisson_ratio.value)))
+        rho.append(float(mat.density_kg_m3.value or 0.0))
+    outer = "absorber" if scene.sensor.layers.absorber_mm > 0 else "ml_layer"
+    return lame, rho, float(scene.material(outer).young_modulus_pa.value)
+
+
+@LinearForm
+def _gravity_form(v, w):
+    return -w.rho * GRAVITY_M_S2 * v[2]
+
+
+class LinearBody:
+    """The assembled and factorised linear elastic sensor, base bottom clamped.
+
+    mesh: :class:`fem.mesh.TetMesh`; lame_by_layer: three (lambda, mu) Pa (absorber, ML, core);
+    density_by_layer: three kg/m^3 (gravity acts along -z when ``gravity``).
+    """
+
+    def __init__(self, mesh, lame_by_layer, density_by_layer, element: str = "P2P1", gravity: bool = True, backend: str = "auto", log=None):
+        from fem.geometry import FaceTag
+        from fem.linsolve import factorise
+
+        t0 = time.perf_counter()
+        self.mesh = mesh
+        self.element = element
+        curved = element != "P1"
+        self.skmesh = elasticity.skfem_mesh(mesh.points, mesh.tets, mesh.edge_nodes if curved else None, mesh.tet_edges if curved else None)
+        self.d = elasticity.discretise(self.skmesh, element)
+        self.lam, self.mu = elasticity.element_lame(mesh.layer_fraction, lame_by_layer)
+        self.rho = mesh.layer_fraction @ np.asarray(density_by_layer, dtype=float)
+        self.K = elasticity.assemble(self.d, self.lam, self.mu)
+        bottom = elasticity.facet_indices(self.skmesh, mesh.faces[mesh.face_tag == FaceTag.BASE_BOTTOM])
+        self.fixed = np.unique(self.d.u.get_dofs(facets=bottom).all())
+        self.free = np.setdiff1d(np.arange(self.d.n_dofs), self.fixed)
+        self.seconds = {"assemble": time.perf_counter() - t0}
+        t0 = time.perf_counter()
+        self.factor = factorise(self.K[self.free][:, self.free], definite=self.d.p is None, backend=backend)
+        self.seconds["factorise"] = time.perf_counter() - t0
+        self.S = fields.stress_operator(self.d, self.lam, self.mu)
+        self.f_gravity = np.zeros(self.d.n_dofs)
+        if gravity:
+            self.f_gravity[: self.d.n_u] = skfem.asm(_gravity_form, self.d.u, rho=elasticity._per_qp(self.rho, self.d.u))
+        # vertex DOFs (for displacements at the mesh's vertices)
+        self.vertex_dofs = self.d.u.nodal_dofs.T.copy()  # (P, 3)
+
+    @property
+    def n_dofs(self) -> int:
+        return self.d.n_dofs
+
+    def solve(self, F: np.ndarray) -> np.ndarray:
+        """K x = F with the base clamped: F (n,) or (n, k) -> x, same shape."""
+        X = np.zeros_like(F, dtype=float)
+        X[self.free] = self.factor.solve(F[self.free])
+        return X
+
+    def stress(self, X: np.ndarray) -> np.ndarray:
+        """Centroid stress (6, T) Pa (or (k, 6, T) for X (n, k))."""
+        T = self.mesh.n_tets
+        s = self.S @ X
+        return s.reshape(6, T) if X.ndim == 1 else s.T.reshape(-1, 6, T)
+
+    def reaction(self, X: np.ndarray, F: np.ndarray) -> np.ndarray:
+        """Force (3,) N (or (k, 3)) that the clamp exerts on the body: sum over fixed DOFs of K x - F."""
+        r = (self.K @ X - F)[self.fixed]
+        comp = elasticity.dof_components(self.d.u)[self.fixed]
+        if X.ndim == 1:
+            return np.array([r[comp == c].sum() for c in range(3)])
+        return np.stack([r[comp == c].sum(axis=0) for c in range(3)], axis=-1)
+
+
+def compliance(body: LinearBody, W: sp.spmatrix, block: int = 256, progress=None) -> np.ndarray:
+    """C = W^T K^-1 W (k, k) by blocks of ``block`` solves."""
+    k = W.shape[1]
+    C = np.empty((k, k))
+    Wd = W.tocsc()
+    for s in range(0, k, block):
+        cols = Wd[:, s : s + block].toarray()
+        C[:, s : s + block] = Wd.T @ body.solve(cols)
+        if progress is not None:
+            progress(min(s + block, k), k)
+    return 0.5 * (C + C.T)
+
+
+@dataclass
+class ReducedModel:
+    """The ``reduced`` tier's precompute: patch positions, areas and rods, patch compliance, and the
+    responses to a unit force on each patch (float32): centroid stress (6 T, 3 M) and vertex
+    displacement (3 P, 3 M); plus the gravity state."""
+
+    X: np.ndarray  # (M, 3)
+    area_m2: np.ndarray  # (M,)
+    rod: np.ndarray  # (M,)
+    C: np.ndarray  # (3 M, 3 M)
+    stress_response: np.ndarray  # (6 T, 3 M)
+    displacement_response: np.ndarray  # (3 P, 3 M), vertex-major (3 p + c)
+    stress_gravity: np.ndarray  # (6 T,)
+    displacement_gravity: np.ndarray  # (3 P,)
+    point_u_gravity: np.ndarray  # (M, 3)
+    seconds: dict = field(default_factory=dict)
+
+    def save(self, path) -> None:
+        np.savez(path, **{k: getattr(self, k) for k in ("X", "area_m2", "rod", "C", "stress_response", "displacement_response",
+                                                         "stress_gravity", "displacement_gravity", "point_u_gravity")})
+
+    @classmethod
+    def load(cls, path) -> "ReducedModel":
+        with np.load(path) as z:
+            return cls(**{k: z[k] for k in z.files})
+
+    @classmethod
+    def build(cls, body: LinearBody, points: condensed.ContactPoints, patches: np.ndarray, progress=None) -> "ReducedModel":
+        t0 = time.perf_counter()
+        M = int(patches.max()) + 1
+        area = np.bincount(patches, weights=points.area_m2, minlength=M)
+        X = np.stack([np.bincount(patches, weights=points.area_m2 * points.X[:, c], minlength=M) for c in range(3)], axis=1) / area[:, None]
+        rod = np.array([np.bincount(points.rod[patches == p] + 1).argmax() - 1 for p in range(M)])
+        # patch force spreads over its points in proportion to area: P (3 m, 3 M)
+        w = points.area_m2 / area[patches]
+        rows = (3 * np.arange(points.m)[:, None] + np.arange(3)).ravel()
+        cols = (3 * patches[:, None] + np.arange(3)).ravel()
+        P = sp.csc_matrix((np.repeat(w, 3), (rows, cols)), shape=(3 * points.m, 3 * M))
+        Wp = (points.W @ P).tocsc()
+        T, Pn = body.mesh.n_tets, body.mesh.n_points
+        stress = np.empty((6 * T, 3 * M), dtype=np.float32)
+        disp = np.empty((3 * Pn, 3 * M), dtype=np.float32)
+        C = np.empty((3 * M, 3 * M))
+        vdofs = body.vertex_dofs.ravel()
+        block = 128
+        for s in range(0, 3 * M, block):
+            Xs = body.solve(Wp[:, s : s + block].toarray())
+            C[:, s : s + block] = Wp.T @ Xs
+            stress[:, s : s + block] = body.S @ Xs
+            disp[:, s : s + block] = Xs[vdofs]
+            if progress is not None:
+                progress(min(s + block, 3 * M), 3 * M)
+        xg = body.solve(body.f_gravity)
+        return cls(X, area, rod, 0.5 * (C + C.T), stress, disp, (body.S @ xg), xg[vdofs],
+                   (Wp.T @ xg).reshape(M, 3), {"precompute": time.perf_counter() - t0})
+
+
+# ------------------------------------------------------------------------------------ an episode
+@dataclass
+class Episode:
+    """Results at every solve step (frames are the steps ``frame_step``). Units: SI.
+
+    Per step: t_s (S,), indenter pose (S, 4) x, y, z m and yaw rad, force target (S,) N (NaN under
+    displacement control); stress (S, 6, T) Pa float32, von_mises (S, T), sed (S, T) J/m^3;
+    vertex displacement (S, P, 3) m float32; contact force on the body per rod (S, R, 3) N and in
+    total (S, 3), normal force (S,) N, reaction at the base (S, 3) N, contact iterations (S,).
+    """
+
+    tier: str
+    element: str
+    t_s: np.ndarray
+    frame_step: np.ndarray
+    pose: np.ndarray
+    force_target_n: np.ndarray
+    stress: np.ndarray
+    von_mises: np.ndarray
+    sed: np.ndarray
+    displacement: np.ndarray
+    rod_force_n: np.ndarray
+    contact_force_n: np.ndarray
+    normal_force_n: np.ndarray
+    reaction_n: np.ndarray
+    iterations: np.ndarray
+    stick_fraction: np.ndarray
+    seconds: dict = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.frame_step)
+
+    def frames(self, name: str) -> np.ndarray:
+        """A per-step array at the frames only."""
+        return getattr(self, name)[self.frame_step]
+
+    def rate(self, name: str) -> np.ndarray:
+        """Backward-difference rate per second of a per-step array, at the frames (frame 0: zero)."""
+        a = getattr(self, name).astype(np.float64)
+        out = np.zeros((self.n_frames,) + a.shape[1:])
+        k = self.frame_step
+        dt = np.diff(self.t_s)
+        for i, s in enumerate(k):
+            if s > 0:
+                out[i] = (a[s] - a[s - 1]) / dt[s - 1]
+        return out
+
+    def save(self, path) -> None:
+        np.savez_compressed(path, tier=self.tier, element=self.element, **{k: getattr(self, k) for k in _EPISODE_ARRAYS},
+                            seconds_json=np.frombuffer(__import__("json").dumps(self.seconds).encode(), dtype=np.uint8))
+
+    @classmethod
+    def load(cls, path) -> "Episode":
+        import json
+
+        with np.load(path) as z:
+            kw = {k: z[k] for k in _EPISODE_ARRAYS}
+            return cls(tier=str(z["tier"]), element=str(z["element"]), seconds=json.loads(z["seconds_json"].tobytes().decode()), **kw)
+
+
+_EPISODE_ARRAYS = ("t_s", "frame_step", "pose", "force_target_n", "stress", "von_mises", "sed", "displacement", "rod_force_n",
+                   "contact_force_n", "normal_force_n", "reaction_n", "iterations", "stick_fraction")
+
+
+def _pose(state: trajectory.IndenterState) -> Pose:
+    return Pose(tuple(state.position_m), state.yaw_rad)
+
+
+def path_points(points: condensed.ContactPoints, shape: IndenterShape, load, grid: trajectory.TimeGrid, tip_z: float, margin_m: float) -> np.ndarray:
+    """Indices of the contact points within ``margin_m`` of the indenter anywhere on its path.
+
+    The indenter's height under force control is not known before the solve, so every pose is
+    taken as low as the deepest displacement-controlled press or, under force control, 3 mm below
+    the tips (rod tips under a force press seldom move further)."""
+    state = trajectory.initial_state(load, tip_z)
+    depth = sum(s.depth_mm for s in load.segments if s.kind == "press" and s.depth_mm is not None) * 1e-3
+    low = tip_z - max(depth - load.start_gap_mm * 1e-3, 0.0) - (3e-3 if any(s.kind == "press" and s.force_n is not None for s in load.segments) else 0.0)
+    near = np.zeros(points.m, dtype=bool)
+    for t in grid.step_times_s:
+        state = trajectory.advance(load, state, t)
+        x, y, _ = state.position_m
+        gap, _ = condensed.gap_and_normal(shape, Pose((x, y, low), state.yaw_rad), points.X)
+        near |= gap < margin_m
+    return np.flatnonzero(near)
+
+
+def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSettings | None = None, reduced: ReducedModel | None = None,
+                progress: bool = False, log=None) -> Episode:
+    """Solve the scene's load on ``mesh`` with the ``linear`` or ``reduced`` tier; returns the :class:`Episode`.
+
+    ``body`` (and for ``reduced`` the precompute) may be passed in to reuse a factorisation.
+    """
+    from fem.geometry import FaceTag
+
+    settings = settings or SolveSettings.from_scene(scene)
+    if scene.load is None:
+        raise ValueError("load: the scene has no load; add a [load] section with an indenter and segments")
+    if settings.tier not in ("linear", "reduced"):
+        raise ValueError(f'fidelity.solve.tier = "{settings.tier}": run_episode runs "linear" and "reduced"; use fem.finite_strain for "nonlinear"')
+    timings: dict = {}
+    lame, rho, e_contact = layer_materials(scene)
+    if body is None:
+        body = LinearBody(mesh, lame, rho, settings.element, settings.gravity, settings.backend)
+    timings.update({f"body_{k}": v for k, v in body.seconds.items()})
+    load = scene.load
+    shape = shape_from_scene(load.indenter)
+    tip_z = float(mesh.points[mesh.faces[mesh.face_tag == FaceTag.ROD_TIP]][..., 2].max())
+    grid = trajectory.time_grid(load, scene.camera.fps, settings.substeps)
+    h = scene.fidelity.mesh.edge_length_mm * 1e-3
+    eps = settings.penalty_factor * e_contact / h  # N/m^3
+    smooth = 1e-4 * h  # the penalty's smoothing length (fem.condensed._contact_law)
+    t0 = time.perf_counter()
+    faces = condensed.contact_faces(mesh, settings.contact_band_m)
+    all_points = condensed.contact_points(mesh, body.skmesh, body.d, faces)
+    timings["contact_points"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    if settings.tier == "reduced":
+        if reduced is None:
+            patches = condensed.group_patches(all_points, settings.patches_per_tip, settings.patches_per_side, tip_z, seed=scene.seed)
+            reduced = ReducedModel.build(body, all_points, patches)
+        X, area, rod, C = reduced.X, reduced.area_m2, reduced.rod, reduced.C
+        u0 = reduced.point_u_gravity
+        timings["precompute"] = reduced.seconds.get("precompute", time.perf_counter() - t0)
+    else:
+        keep = path_points(all_points, shape, load, grid, tip_z, settings.path_margin_m)
+        points = all_points.subset(keep)
+        X, area, rod = points.X, points.area_m2, points.rod
+        C = compliance(body, points.W)
+        xg = body.solve(body.f_gravity)
+        u0 = (points.W.T @ xg).reshape(-1, 3)
+        timings["precompute"] = time.perf_counter() - t0
+    m = len(X)
+    k_n = eps * area
+    # a softer tangential penalty (0.1 eps_n): the stick stiffness still far exceeds the body's,
+    # and the frictional Newton on the default slide converges where eps_t = eps_n stalls
+    k_t = 0.1 * eps * area
+    n_rods = int(mesh.tet_rod.max()) + 1
+
+    steps = grid.step_times_s
+    S = len(steps)
+    forces = np.zeros((S, m, 3))
+    pose_arr = np.zeros((S, 4))
+    target = np.full(S, np.nan)
+    iters = np.zeros(S, dtype=np.int64)
+    stick = np.zeros(S)
+    state = trajectory.initial_state(load, tip_z)
+    pstate = condensed.PointState(u0.copy(), np.zeros((m, 3)))
+    pose_old = _pose(state)
+    normal_now = 0.0
+    bar = _bar(progress, S, f"solve ({settings.tier})")
+    t_loop = time.perf_counter()
+    for s, t in enumerate(steps):
+        state = trajectory.advance(load, state, t, normal_now)
+        case = f"step {s} (t = {t * 1e3:.1f} ms)"
+        if state.force_target_n is None:
+            pose = _pose(state)
+            u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
+                                                 max_penetration_m=0.1 * h)
+            n_it = info["iterations"]
+        else:
+            z_free = tip_z + 1e-4 + float(np.abs(u0[:, 2]).max())
+            count = [0]
+
+            def at_z(z):
+                p = Pose((state.position_m[0], state.position_m[1], z), state.yaw_rad)
+                u, law, info = condensed.solve_path(C, u0, X, shape, p, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
+                                                 max_penetration_m=0.1 * h)
+                count[0] += info["iterations"]
+                return condensed.normal_force(law), (u, law, p)
+
+            z, (u, law, pose), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case)
+            state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
+            target[s] = state.force_target_n
+            n_it = count[0]
+        pstate = condensed.PointState(u.copy(), law.f_t.copy())
+        pose_old = pose
+        forces[s] = law.f
+        normal_now = condensed.normal_force(law)
+        pose_arr[s] = (*pose.position_m, pose.yaw_rad)
+        iters[s] = n_it
+        touching = law.touching
+        stick[s] = float(law.stick.sum() / touching.sum()) if touching.any() else np.nan
+        bar(s + 1)
+    timings["contact_steps"] = time.perf_counter() - t_loop
+
+    t0 = time.perf_counter()
+    T = mesh.n_tets
+    if settings.tier == "reduced":
+        Fp = forces.reshape(S, 3 * m).T.astype(np.float32)  # (3 M, S)
+        stress = (reduced.stress_response @ Fp).T.reshape(S, 6, T) + reduced.stress_gravity.reshape(6, T)
+        disp = ((reduced.displacement_response @ Fp).T + reduced.displacement_gravity).reshape(S, -1, 3)
+        total = forces.sum(axis=1)
+        weight = np.array([0.0, 0.0, -GRAVITY_M_S2 * float(np.sum(body.rho * mesh.volumes))]) if settings.gravity else np.zeros(3)
+        reaction = -(total + weight)
+    else:
+        F = body.f_gravity[:, None] + points.W @ forces.reshape(S, 3 * m).T  # (n, S)
+        Xs = body.solve(F)
+        stress = body.stress(Xs)
+        disp = Xs[body.vertex_dofs.ravel()].T.reshape(S, -1, 3)
+        reaction = body.reaction(Xs, F)
+        total = forces.sum(axis=1)
+    timings["fields"] = time.perf_counter() - t0
+    stress = stress.astype(np.float32)
+    lam_t, mu_t = body.lam, body.mu
+    vm = fields.von_mises(np.moveaxis(stress, 1, 0)).astype(np.float32)
+    sed = fields.strain_energy_density(np.moveaxis(stress, 1, 0).astype(np.float64), lam_t, mu_t).astype(np.float32)
+    rod_force = np.zeros((S, n_rods, 3))
+    on_rod = rod >= 0
+    for c in range(3):
+        for s in range(S):
+            rod_force[s, :, c] = np.bincount(rod[on_rod], weights=forces[s, on_rod, c], minlength=n_rods)
+    timings["per_frame_ms"] = 1e3 * (timings["contact_steps"] + timings["fields"]) / grid.n_frames
+    episode = Episode(settings.tier, body.element, steps, grid.frame_step, pose_arr, target, stress, vm, sed, disp.astype(np.float32),
+                      rod_force, total, -total[:, 2], reaction, iters, stick, timings)
+    _check_finite(episode)
+    return episode
+
+
+def _check_finite(ep: Episode) -> None:
+    for name in _EPISODE_ARRAYS:
+        a = getattr(ep, name)
+        if name in ("force_target_n", "stick_fraction"):
+            continue  # NaN there means "not force controlled" / "no contact"
+        if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+            raise SolverError(f"the {ep.tier} solve produced NaN or Inf in {name}")
+
+
+def _bar(enabled: bool, total: int, desc: str):
+    if not enabled:
+        return lambda n: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit="step", leave=False)
+
+    def update(n):
+        bar.n = n
+        bar.refresh()
+        if n >= total:
+            bar.close()
+
+    return update

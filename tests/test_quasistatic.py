@@ -1,0 +1,105 @@
+"""The time-stepped linear solve with contact on condensed compliance (fem.quasistatic, fem.condensed),
+on the 2 x 2 tiny sensor: equilibrium, linearity, symmetry, friction, and finiteness."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fem import quasistatic as qs
+from mlsim.scene import scene_from_dict
+
+
+def _scene(tiny_scene, segments, friction=0.0, gravity=False, substeps=1, diameter_mm=40.0):
+    data = tiny_scene.model_dump(mode="json", exclude_none=True)
+    data["load"] = {
+        "indenter": {"shape": "flat", "diameter_mm": diameter_mm},
+        "start_xy_mm": [0.0, 0.0],
+        "start_gap_mm": 0.5,
+        "friction_coefficient": friction,
+        "segments": segments,
+    }
+    data["fidelity"]["solve"] = {"tier": "linear", "substeps": substeps, "gravity": gravity}
+    return scene_from_dict(data)
+
+
+@pytest.fixture(scope="module")
+def body(tiny_mesh):
+    scene, _, mesh, _ = tiny_mesh
+    lame, rho, _ = qs.layer_materials(scene)
+    return qs.LinearBody(mesh, lame, rho, "P2P1", gravity=False)
+
+
+def test_frictionless_press_equilibrium_symmetry_linearity(tiny_mesh, body):
+    scene0, _, mesh, _ = tiny_mesh
+    press = [{"kind": "press", "depth_mm": 0.6, "speed_mm_s": 6.0}, {"kind": "press", "depth_mm": 0.1, "speed_mm_s": 1.0}]
+    scene = _scene(scene0, press)
+    ep = qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False))
+    # no gravity: the clamp's reaction balances the contact force
+    np.testing.assert_allclose(ep.reaction_n + ep.contact_force_n, 0.0, atol=1e-8 * np.abs(ep.contact_force_n).max())
+    # the flat punch covers all four rods: equal shares (the mesh is not symmetric: 5 %)
+    last = ep.rod_force_n[-1, :, 2]
+    assert np.all(last < 0)
+    np.testing.assert_allclose(last, last.mean(), rtol=0.05)
+    # frictionless flat punch on fully covered tips: force proportional to indentation
+    t = ep.t_s
+    depth = np.interp(t, [0, 0.1, 0.2], [-0.5, 0.1, 0.2])  # mm below the tips
+    f = ep.normal_force_n
+    i1, i2 = np.argmin(abs(depth - 0.1)), np.argmin(abs(depth - 0.2))
+    assert f[i2] / f[i1] == pytest.approx(depth[i2] / depth[i1], rel=0.02)
+    # stress: the rods are in compression, finite everywhere
+    assert np.all(np.isfinite(ep.stress)) and np.all(np.isfinite(ep.displacement))
+    assert ep.von_mises[-1].max() > 0
+
+
+def test_friction_stick_then_slip(tiny_mesh, body):
+    """A flat probe pressed on the four tips, then slid 8 mm: the tangential force starts well below
+    mu N while the tips stick and bend the rods, and ends at mu N (within 2 %) in gross slip."""
+    scene0, _, mesh, _ = tiny_mesh
+    mu = 0.5
+    segs = [{"kind": "press", "depth_mm": 0.7, "speed_mm_s": 7.0},
+            {"kind": "slide", "distance_mm": 8.0, "speed_mm_s": 20.0}]
+    scene = _scene(scene0, segs, friction=mu, substeps=4)
+    ep = qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False, substeps=4))
+    ratio = np.hypot(ep.contact_force_n[:, 0], ep.contact_force_n[:, 1]) / np.maximum(ep.normal_force_n, 1e-12)
+    first = np.flatnonzero(ep.t_s > 0.1 + 1e-9)[0]
+    assert ratio[first] < 0.5 * mu  # stick: friction not yet mobilised
+    assert ep.stick_fraction[first] > 0.2
+    end_of_slide = np.argmin(abs(ep.t_s - 0.5))
+    assert ratio[end_of_slide] == pytest.approx(mu, rel=0.02)  # gross slip: T = mu N
+    assert ep.stick_fraction[end_of_slide] == 0.0
+    assert ep.contact_force_n[end_of_slide, 0] > 0  # the probe drags the tips along +x
+    assert np.all(np.isfinite(ep.stress))
+
+
+@pytest.mark.parametrize("case, segs", [
+    ("zero load", [{"kind": "hold", "duration_s": 0.1}]),
+    ("2 mm per frame", [{"kind": "press", "depth_mm": 0.8, "speed_mm_s": 8.0},
+                        {"kind": "slide", "distance_mm": 8.0, "speed_mm_s": 60.0, "direction_deg": 45.0}]),
+    ("deep press", [{"kind": "press", "depth_mm": 3.5, "speed_mm_s": 35.0}]),
+])
+def test_extreme_loads_converge_and_stay_finite(tiny_mesh, body, case, segs):
+    scene0, _, mesh, _ = tiny_mesh
+    scene = _scene(scene0, segs, friction=0.8, diameter_mm=12.0)
+    ep = qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False))
+    for name in ("stress", "von_mises", "sed", "displacement", "rod_force_n", "reaction_n"):
+        assert np.all(np.isfinite(getattr(ep, name))), f"{case}: {name} has NaN or Inf"
+    np.testing.assert_allclose(ep.reaction_n + ep.contact_force_n, 0.0, atol=1e-8 * max(np.abs(ep.contact_force_n).max(), 1e-12))
+    if case == "zero load":
+        assert np.all(ep.contact_force_n == 0) and np.all(ep.stress == 0)
+    else:
+        assert ep.normal_force_n.max() > 0
+
+
+def test_force_controlled_press_reaches_the_ramp(tiny_mesh, body):
+    scene0, _, mesh, _ = tiny_mesh
+    segs = [{"kind": "press", "force_n": 3.0, "duration_s": 0.1}, {"kind": "hold", "duration_s": 0.05}]
+    scene = _scene(scene0, segs, friction=0.5)
+    ep = qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False))
+    target = np.minimum(ep.t_s / 0.1, 1.0) * 3.0
+    on = ep.t_s > 0
+    np.testing.assert_allclose(ep.normal_force_n[on], target[on], rtol=1e-5)
+    np.testing.assert_allclose(ep.force_target_n[on], target[on], rtol=1e-12)
+    # the punch sinks as the force grows, and holds its height while the force is held
+    z = ep.pose[:, 2]
+    assert np.all(np.diff(z[on]) <= 1e-12)
