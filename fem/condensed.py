@@ -98,19 +98,14 @@ def contact_faces(mesh, band_m: float) -> np.ndarray:
     return np.flatnonzero(tip | side)
 
 
-@BilinearForm
-def _hat_x(phi, v, w):
-    return phi * v[0]
+def _hat_component(c: int) -> BilinearForm:
+    """phi v_c: a P1 hat traction along axis c against the vector test functions."""
 
+    @BilinearForm
+    def form(phi, v, w):
+        return phi * v[c]
 
-@BilinearForm
-def _hat_y(phi, v, w):
-    return phi * v[1]
-
-
-@BilinearForm
-def _hat_z(phi, v, w):
-    return phi * v[2]
+    return form
 
 
 @LinearForm
@@ -132,16 +127,13 @@ def contact_points(mesh, skmesh, d, faces: np.ndarray) -> ContactPoints:
     area = area_all[verts]
     if np.any(area <= 0):
         raise ValueError("a contact vertex has no area: the contact faces are degenerate")
-    blocks = [skfem.asm(form, fb_1, fb_u).tocsc()[:, verts] for form in (_hat_x, _hat_y, _hat_z)]  # (n_u, m) each
-    n_u = d.n_u
     m = len(verts)
-    cols = []
-    for b in blocks:
-        cols.append(b.multiply(1.0 / area[None, :]).tocsc())
+    scale = sp.diags(1.0 / area)
+    blocks = [skfem.asm(_hat_component(c), fb_1, fb_u).tocsc()[:, verts] @ scale for c in range(3)]  # (n_u, m) each
     # interleave: column 3 i + c
-    W = sp.hstack(cols, format="csc")[:, (np.arange(3)[None, :] * m + np.arange(m)[:, None]).ravel()]
-    if d.n_dofs > n_u:
-        W = sp.vstack([W, sp.csc_matrix((d.n_dofs - n_u, 3 * m))], format="csc")
+    W = sp.hstack(blocks, format="csc")[:, (np.arange(3)[None, :] * m + np.arange(m)[:, None]).ravel()]
+    if d.n_dofs > d.n_u:
+        W = sp.vstack([W, sp.csc_matrix((d.n_dofs - d.n_u, 3 * m))], format="csc")
     # rod of each point: the rod of any face that uses it
     rod = np.full(mesh.n_points, -1)
     rod[mesh.faces[faces].ravel()] = np.repeat(mesh.face_rod[faces], 3)
@@ -323,8 +315,7 @@ def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: Indenter
                 du_a = np.linalg.solve(J, -r.ravel()[cols])
             except np.linalg.LinAlgError:
                 raise SolverError(f"{case}: the condensed contact tangent is singular (iteration {it})") from None
-            du = (-r.ravel() + CD @ du_a).reshape(m, 3)
-            du.reshape(-1)[cols] = du_a
+            du = (-r.ravel() + CD @ du_a).reshape(m, 3)  # on the active rows this is du_a itself
         # backtracking on |R|_2 (smooth: the penalty is smoothed); the first step is always taken
         alpha = 1.0
         while True:

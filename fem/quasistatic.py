@@ -25,6 +25,8 @@ are backward differences over one step (:class:`Episode`).
 
 from __future__ import annotations
 
+import functools
+import json
 import time
 from dataclasses import dataclass, field
 
@@ -34,7 +36,7 @@ import skfem
 from skfem import LinearForm
 
 from fem import condensed, elasticity, fields, trajectory
-from fem.indenters import IndenterShape, Pose, shape_from_scene
+from fem.indenters import IndenterShape, Pose, gap_and_normal, shape_from_scene
 from fem.nonlinear import SolverError
 
 __all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "run_episode", "layer_materials"]
@@ -127,6 +129,16 @@ class LinearBody:
     def n_dofs(self) -> int:
         return self.d.n_dofs
 
+    @functools.cached_property
+    def x_gravity(self) -> np.ndarray:
+        """(n,) the state under gravity alone (zero without gravity)."""
+        return self.solve(self.f_gravity)
+
+    def weight_n(self) -> np.ndarray:
+        """(3,) N the body's weight: the resultant of the gravity load."""
+        comp = elasticity.dof_components(self.d.u)
+        return np.bincount(comp, weights=self.f_gravity[: self.d.n_u], minlength=3)
+
     def solve(self, F: np.ndarray) -> np.ndarray:
         """K x = F with the base clamped: F (n,) or (n, k) -> x, same shape."""
         X = np.zeros_like(F, dtype=float)
@@ -213,7 +225,7 @@ class ReducedModel:
             disp[:, s : s + block] = Xs[vdofs]
             if progress is not None:
                 progress(min(s + block, 3 * M), 3 * M)
-        xg = body.solve(body.f_gravity)
+        xg = body.x_gravity
         return cls(X, area, rod, 0.5 * (C + C.T), stress, disp, (body.S @ xg), xg[vdofs],
                    (Wp.T @ xg).reshape(M, 3), {"precompute": time.perf_counter() - t0})
 
@@ -267,16 +279,14 @@ class Episode:
         return out
 
     def save(self, path) -> None:
-        np.savez_compressed(path, tier=self.tier, element=self.element, **{k: getattr(self, k) for k in _EPISODE_ARRAYS},
-                            seconds_json=np.frombuffer(__import__("json").dumps(self.seconds).encode(), dtype=np.uint8))
+        np.savez_compressed(path, tier=self.tier, element=self.element, seconds_json=json.dumps(self.seconds),
+                            **{k: getattr(self, k) for k in _EPISODE_ARRAYS})
 
     @classmethod
     def load(cls, path) -> "Episode":
-        import json
-
         with np.load(path) as z:
             kw = {k: z[k] for k in _EPISODE_ARRAYS}
-            return cls(tier=str(z["tier"]), element=str(z["element"]), seconds=json.loads(z["seconds_json"].tobytes().decode()), **kw)
+            return cls(tier=str(z["tier"]), element=str(z["element"]), seconds=json.loads(str(z["seconds_json"])), **kw)
 
 
 _EPISODE_ARRAYS = ("t_s", "frame_step", "pose", "force_target_n", "stress", "von_mises", "sed", "displacement", "rod_force_n",
@@ -300,7 +310,7 @@ def path_points(points: condensed.ContactPoints, shape: IndenterShape, load, gri
     for t in grid.step_times_s:
         state = trajectory.advance(load, state, t)
         x, y, _ = state.position_m
-        gap, _ = condensed.gap_and_normal(shape, Pose((x, y, low), state.yaw_rad), points.X)
+        gap, _ = gap_and_normal(shape, Pose((x, y, low), state.yaw_rad), points.X)
         near |= gap < margin_m
     return np.flatnonzero(near)
 
@@ -348,8 +358,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         points = all_points.subset(keep)
         X, area, rod = points.X, points.area_m2, points.rod
         C = compliance(body, points.W)
-        xg = body.solve(body.f_gravity)
-        u0 = (points.W.T @ xg).reshape(-1, 3)
+        u0 = (points.W.T @ body.x_gravity).reshape(-1, 3)
         timings["precompute"] = time.perf_counter() - t0
     m = len(X)
     k_n = eps * area
@@ -412,8 +421,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         stress = (reduced.stress_response @ Fp).T.reshape(S, 6, T) + reduced.stress_gravity.reshape(6, T)
         disp = ((reduced.displacement_response @ Fp).T + reduced.displacement_gravity).reshape(S, -1, 3)
         total = forces.sum(axis=1)
-        weight = np.array([0.0, 0.0, -GRAVITY_M_S2 * float(np.sum(body.rho * mesh.volumes))]) if settings.gravity else np.zeros(3)
-        reaction = -(total + weight)
+        reaction = -(total + body.weight_n())
     else:
         F = body.f_gravity[:, None] + points.W @ forces.reshape(S, 3 * m).T  # (n, S)
         Xs = body.solve(F)
@@ -426,11 +434,9 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     lam_t, mu_t = body.lam, body.mu
     vm = fields.von_mises(np.moveaxis(stress, 1, 0)).astype(np.float32)
     sed = fields.strain_energy_density(np.moveaxis(stress, 1, 0).astype(np.float64), lam_t, mu_t).astype(np.float32)
-    rod_force = np.zeros((S, n_rods, 3))
     on_rod = rod >= 0
-    for c in range(3):
-        for s in range(S):
-            rod_force[s, :, c] = np.bincount(rod[on_rod], weights=forces[s, on_rod, c], minlength=n_rods)
+    rod_force = np.zeros((S, n_rods, 3))
+    np.add.at(rod_force, (slice(None), rod[on_rod]), forces[:, on_rod])
     timings["per_frame_ms"] = 1e3 * (timings["contact_steps"] + timings["fields"]) / grid.n_frames
     episode = Episode(settings.tier, body.element, steps, grid.frame_step, pose_arr, target, stress, vm, sed, disp.astype(np.float32),
                       rod_force, total, -total[:, 2], reaction, iters, stick, timings)

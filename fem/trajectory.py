@@ -91,7 +91,7 @@ def segment_at(load, t_s: float) -> tuple[int, float, float]:
     return -1, start, start
 
 
-def _move(state: IndenterState, seg, dt: float, force_at_start: float) -> IndenterState:
+def _move(state: IndenterState, seg, dt: float) -> IndenterState:
     """The state after ``dt`` seconds inside segment ``seg`` (constant velocities)."""
     x, y, z = state.position_m
     if seg.kind == "press" and seg.depth_mm is not None:
@@ -124,7 +124,7 @@ def advance(load, state: IndenterState, t_new: float, force_now_n: float = 0.0) 
             break
         seg = load.segments[k]
         t_next = min(end, t_new)
-        s = _move(s, seg, t_next - t, force_now_n)
+        s = _move(s, seg, t_next - t)
         if seg.kind == "press" and seg.force_n is not None:
             f0 = s.ramp_from_n
             if f0 is None:  # entering the ramp
