@@ -24,6 +24,7 @@ test-slow: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_mesh.py
+	$(PY) benchmarks/bench_tiers.py
 
 venv: $(STAMP)
 

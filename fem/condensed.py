@@ -272,12 +272,16 @@ def solve_points(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, gue
 
 def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: IndenterShape, pose: Pose, pose_old: Pose, state: PointState,
                  friction: float, k_n: np.ndarray, k_t: np.ndarray, guess: np.ndarray | None = None,
-                 tol_m: float = 1e-12, rtol: float = 1e-8, max_iterations: int = 200, case: str = "contact step", smooth_m: float = 1e-7):
+                 tol_m: float = 1e-12, rtol: float = 1e-8, max_iterations: int = 200, case: str = "contact step", smooth_m: float = 1e-7,
+                 max_step_m: float | None = None):
     """Solve u = u0 + C f(u) for the points' displacements u (m, 3) at indenter ``pose``.
 
     C: (3 m, 3 m) point compliance (m/N), point-major. u0: (m, 3) displacements without contact
     forces. state: the points' state at ``pose_old`` (the previous converged step). k_n, k_t: (m,)
-    N/m. Converged when max |R| <= max(tol_m, rtol max |u|). Returns (u, law at u, info dict:
+    N/m. Converged when max |R| <= max(tol_m, rtol max |u|). ``max_step_m`` caps how far any point
+    moves in one iteration (a trust region): a penalty contact has distant spurious equilibria (a
+    rod tip squeezed out from under a punch and held bent by its side wall), and an uncapped first
+    Newton step can land in their basin. Returns (u, law at u, info dict:
     iterations, residual 2-norms). Raises SolverError on failure.
     """
     m = len(X)
@@ -288,11 +292,9 @@ def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: Indenter
 
     def residual(u, predictor=False):
         law = _contact_law(X, u, shape, pose, drag, state, friction, k_n, k_t, predictor, smooth_m)
-        a = np.flatnonzero(law.touching)
         r = u - u0
-        if len(a):
-            cols = (3 * a[:, None] + np.arange(3)).ravel()
-            r = r - (C[:, cols] @ law.f[a].ravel()).reshape(m, 3)
+        if law.touching.any():  # f is zero off contact: one product with the whole C beats copying its columns
+            r = r - (C @ law.f.ravel()).reshape(m, 3)
         return r, law
 
     r, law = residual(u, predictor=True)
@@ -307,15 +309,23 @@ def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: Indenter
         if len(a) == 0:
             du = -r
         else:
+            # Newton on the active points: (I - C_aa D_a) du_a = -r_a, D block-diagonal (3 x 3 per point);
+            # the others follow, du = -r + C_:a D_a du_a
             cols = (3 * a[:, None] + np.arange(3)).ravel()
             Dblk = law.D[a]  # (na, 3, 3)
-            CD = np.einsum("pjd,jde->pje", C[:, cols].reshape(3 * m, len(a), 3), Dblk).reshape(3 * m, 3 * len(a))
-            J = np.eye(len(cols)) - CD[cols]
+            J = np.eye(len(cols)) - np.einsum("pjd,jde->pje", C[np.ix_(cols, cols)].reshape(len(cols), len(a), 3), Dblk).reshape(len(cols), len(cols))
             try:
                 du_a = np.linalg.solve(J, -r.ravel()[cols])
             except np.linalg.LinAlgError:
                 raise SolverError(f"{case}: the condensed contact tangent is singular (iteration {it})") from None
-            du = (-r.ravel() + CD @ du_a).reshape(m, 3)  # on the active rows this is du_a itself
+            push = np.zeros((m, 3))
+            push[a] = np.einsum("pde,pe->pd", Dblk, du_a.reshape(-1, 3))
+            du = (-r.ravel() + C @ push.ravel()).reshape(m, 3)
+            du[a] = du_a.reshape(-1, 3)  # the same up to round-off; exact on the active rows
+        if max_step_m is not None:
+            longest = float(np.linalg.norm(du, axis=1).max())
+            if longest > max_step_m:
+                du *= max_step_m / longest
         # backtracking on |R|_2 (smooth: the penalty is smoothed); the first step is always taken
         alpha = 1.0
         while True:
@@ -348,11 +358,20 @@ def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: Indenter
 
 
 def solve_path(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case: str = "contact step", max_depth: int = 8,
-               max_penetration_m: float | None = None, **kw):
-    """:func:`solve_points` from ``pose_old`` to ``pose``; when Newton fails, or a point ends deeper
-    in the indenter than ``max_penetration_m``, the move is split in halves (recursively,
-    ``max_depth`` times: down to 1/256 of it), each solved from the last.
+               max_penetration_m: float | None = None, max_jump_m: float | None = None, **kw):
+    """:func:`solve_points` from ``pose_old`` to ``pose``; the move is split in halves (recursively,
+    ``max_depth`` times: down to 1/256 of it), each solved from the last, when
+
+    - the indenter at ``pose`` would reach deeper than ``max_jump_m`` into the points where they were
+      (before they respond): a larger jump can carry a thin indenter past a point, which the penalty
+      then pushes out of the far side (tunnelling that no converged state shows);
+    - Newton fails, or a point ends deeper in the indenter than ``max_penetration_m``.
+
     Returns (u, law, info) with the total iterations and the number of cuts in info."""
+    if max_jump_m is not None and max_depth > 0:
+        gap_before, _ = gap_and_normal(shape, pose, X + state.u)
+        if -float(gap_before.min()) > max_jump_m:
+            return _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, max_depth, max_penetration_m, max_jump_m, **kw)
     try:
         u, law, info = solve_points(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case=case, **kw)
         info.setdefault("cuts", 0)
@@ -366,10 +385,15 @@ def solve_path(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case:
     except SolverError:
         if max_depth <= 0:
             raise
+    return _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, max_depth, max_penetration_m, max_jump_m, **kw)
+
+
+def _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, max_depth, max_penetration_m, max_jump_m, **kw):
+    """:func:`solve_path` over the two halves of the move, the second from the first's state."""
     mid = Pose(tuple(0.5 * (np.asarray(pose.position_m) + np.asarray(pose_old.position_m))), 0.5 * (pose.yaw_rad + pose_old.yaw_rad))
-    u1, law1, i1 = solve_path(C, u0, X, shape, mid, pose_old, state, friction, k_n, k_t, case, max_depth - 1, max_penetration_m, **kw)
+    u1, law1, i1 = solve_path(C, u0, X, shape, mid, pose_old, state, friction, k_n, k_t, case, max_depth - 1, max_penetration_m, max_jump_m, **kw)
     u2, law2, i2 = solve_path(C, u0, X, shape, pose, mid, PointState(u1.copy(), law1.f_t.copy()), friction, k_n, k_t, case, max_depth - 1,
-                              max_penetration_m, **kw)
+                              max_penetration_m, max_jump_m, **kw)
     return u2, law2, {"iterations": i1["iterations"] + i2["iterations"], "cuts": 1 + i1["cuts"] + i2["cuts"], "residuals_m": i2["residuals_m"]}
 
 

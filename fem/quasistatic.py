@@ -39,7 +39,7 @@ from fem import condensed, elasticity, fields, trajectory
 from fem.indenters import IndenterShape, Pose, gap_and_normal, shape_from_scene
 from fem.nonlinear import SolverError
 
-__all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "run_episode", "layer_materials"]
+__all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "build_reduced", "run_episode", "layer_materials"]
 
 GRAVITY_M_S2 = 9.80665
 
@@ -58,6 +58,7 @@ class SolveSettings:
     gravity: bool = True
     backend: str = "auto"
     path_margin_m: float = 1.0e-3  # linear tier: contact points within this of the swept indenter
+    small_strain_limit: float = 0.5  # refuse a step where a contact point moves more than this x rod height
 
     @classmethod
     def from_scene(cls, scene) -> "SolveSettings":
@@ -69,7 +70,7 @@ class SolveSettings:
             element = "P2P1" if (f.formulation == "mixed" or (f.formulation == "auto" and nu_max >= 0.45)) else "P2"
         return cls(tier=f.tier, element=element, substeps=f.substeps, contact_band_m=f.contact_band_mm * 1e-3,
                    penalty_factor=f.penalty_factor, patches_per_tip=f.patches_per_tip, patches_per_side=f.patches_per_side,
-                   gravity=f.gravity)
+                   gravity=f.gravity, small_strain_limit=f.small_strain_limit)
 
 
 def layer_materials(scene):
@@ -188,16 +189,22 @@ class ReducedModel:
     stress_gravity: np.ndarray  # (6 T,)
     displacement_gravity: np.ndarray  # (3 P,)
     point_u_gravity: np.ndarray  # (M, 3)
+    weight_n: np.ndarray  # (3,) the body's weight
+    lam: np.ndarray  # (T,) Pa, per tet (for the strain energy density)
+    mu: np.ndarray  # (T,) Pa
+    element: str = "P2P1"
     seconds: dict = field(default_factory=dict)
 
+    _ARRAYS = ("X", "area_m2", "rod", "C", "stress_response", "displacement_response", "stress_gravity", "displacement_gravity",
+               "point_u_gravity", "weight_n", "lam", "mu")
+
     def save(self, path) -> None:
-        np.savez(path, **{k: getattr(self, k) for k in ("X", "area_m2", "rod", "C", "stress_response", "displacement_response",
-                                                         "stress_gravity", "displacement_gravity", "point_u_gravity")})
+        np.savez(path, element=self.element, seconds_json=json.dumps(self.seconds), **{k: getattr(self, k) for k in self._ARRAYS})
 
     @classmethod
     def load(cls, path) -> "ReducedModel":
         with np.load(path) as z:
-            return cls(**{k: z[k] for k in z.files})
+            return cls(**{k: z[k] for k in cls._ARRAYS}, element=str(z["element"]), seconds=json.loads(str(z["seconds_json"])))
 
     @classmethod
     def build(cls, body: LinearBody, points: condensed.ContactPoints, patches: np.ndarray, progress=None) -> "ReducedModel":
@@ -226,8 +233,8 @@ class ReducedModel:
             if progress is not None:
                 progress(min(s + block, 3 * M), 3 * M)
         xg = body.x_gravity
-        return cls(X, area, rod, 0.5 * (C + C.T), stress, disp, (body.S @ xg), xg[vdofs],
-                   (Wp.T @ xg).reshape(M, 3), {"precompute": time.perf_counter() - t0})
+        return cls(X, area, rod, 0.5 * (C + C.T), stress, disp, (body.S @ xg), xg[vdofs], (Wp.T @ xg).reshape(M, 3), body.weight_n(),
+                   body.lam, body.mu, body.element, {"precompute": time.perf_counter() - t0})
 
 
 # ------------------------------------------------------------------------------------ an episode
@@ -235,7 +242,8 @@ class ReducedModel:
 class Episode:
     """Results at every solve step (frames are the steps ``frame_step``). Units: SI.
 
-    Per step: t_s (S,), indenter pose (S, 4) x, y, z m and yaw rad, force target (S,) N (NaN under
+    The episode carries its mesh (vertices, tets, rod index and layer fractions per tet), so a saved
+    episode is self-contained. Per step: t_s (S,), indenter pose (S, 4) x, y, z m and yaw rad, force target (S,) N (NaN under
     displacement control); stress (S, 6, T) Pa float32, von_mises (S, T), sed (S, T) J/m^3;
     vertex displacement (S, P, 3) m float32; contact force on the body per rod (S, R, 3) N and in
     total (S, 3), normal force (S,) N, reaction at the base (S, 3) N, contact iterations (S,).
@@ -257,11 +265,46 @@ class Episode:
     reaction_n: np.ndarray
     iterations: np.ndarray
     stick_fraction: np.ndarray
+    mesh_points: np.ndarray  # (P, 3) m: the vertices the displacement is given at
+    mesh_tets: np.ndarray  # (T, 4): the tets the stress is given on (the linear mesh)
+    tet_rod: np.ndarray  # (T,) rod index, -1 for the base
+    layer_fraction: np.ndarray  # (T, 3) absorber, ML, core
     seconds: dict = field(default_factory=dict)
 
     @property
     def n_frames(self) -> int:
         return len(self.frame_step)
+
+    def rod_peaks(self) -> dict[str, list[float]]:
+        """Per rod, over all steps: peak von Mises stress in the whole rod and in its ML layer (tets
+        with an ML fraction of at least one half) in kPa, peak normal (-z) and total contact force in N."""
+        R = self.rod_force_n.shape[1]
+        vm_peak = self.von_mises.max(axis=0)  # (T,)
+        ml = self.layer_fraction[:, 1] >= 0.5
+        out: dict[str, list[float]] = {"von_mises_kpa": [], "ml_von_mises_kpa": [], "normal_force_n": [], "contact_force_n": []}
+        for r in range(R):
+            on = self.tet_rod == r
+            out["von_mises_kpa"].append(float(vm_peak[on].max() / 1e3) if on.any() else 0.0)
+            out["ml_von_mises_kpa"].append(float(vm_peak[on & ml].max() / 1e3) if (on & ml).any() else 0.0)
+        out["normal_force_n"] = [float(v) for v in np.maximum(-self.rod_force_n[:, :, 2].min(axis=0), 0.0)]
+        out["contact_force_n"] = [float(v) for v in np.linalg.norm(self.rod_force_n, axis=2).max(axis=0)]
+        return out
+
+    def summary(self) -> dict:
+        """Headline numbers of the episode for a run's JSON summary (units in the keys)."""
+        return {
+            "tier": self.tier,
+            "element": self.element,
+            "n_frames": self.n_frames,
+            "n_steps": len(self.t_s),
+            "per_frame_ms": self.seconds.get("per_frame_ms"),
+            "precompute_s": self.seconds.get("precompute"),
+            "peak_normal_force_n": float(self.normal_force_n.max()),
+            "peak_von_mises_kpa": float(self.von_mises.max() / 1e3),
+            "max_displacement_mm": float(np.linalg.norm(self.displacement, axis=2).max() * 1e3),
+            "contact_iterations": {"total": int(self.iterations.sum()), "max_per_step": int(self.iterations.max())},
+            "per_rod_peak": self.rod_peaks(),
+        }
 
     def frames(self, name: str) -> np.ndarray:
         """A per-step array at the frames only."""
@@ -290,7 +333,8 @@ class Episode:
 
 
 _EPISODE_ARRAYS = ("t_s", "frame_step", "pose", "force_target_n", "stress", "von_mises", "sed", "displacement", "rod_force_n",
-                   "contact_force_n", "normal_force_n", "reaction_n", "iterations", "stick_fraction")
+                   "contact_force_n", "normal_force_n", "reaction_n", "iterations", "stick_fraction", "mesh_points", "mesh_tets",
+                   "tet_rod", "layer_fraction")
 
 
 def _pose(state: trajectory.IndenterState) -> Pose:
@@ -315,6 +359,25 @@ def path_points(points: condensed.ContactPoints, shape: IndenterShape, load, gri
     return np.flatnonzero(near)
 
 
+def build_reduced(scene, mesh, body: LinearBody | None = None, settings: SolveSettings | None = None, progress=None) -> ReducedModel:
+    """The ``reduced`` tier's precompute for a scene's sensor (independent of its load): contact
+    points of the tips and side bands, grouped into patches, and their responses."""
+    from fem.geometry import FaceTag
+
+    settings = settings or SolveSettings.from_scene(scene)
+    t0 = time.perf_counter()
+    if body is None:
+        lame, rho, _ = layer_materials(scene)
+        body = LinearBody(mesh, lame, rho, settings.element, settings.gravity, settings.backend)
+    tip_z = float(mesh.points[mesh.faces[mesh.face_tag == FaceTag.ROD_TIP]][..., 2].max())
+    points = condensed.contact_points(mesh, body.skmesh, body.d, condensed.contact_faces(mesh, settings.contact_band_m))
+    patches = condensed.group_patches(points, settings.patches_per_tip, settings.patches_per_side, tip_z, seed=scene.seed)
+    body_s = time.perf_counter() - t0
+    model = ReducedModel.build(body, points, patches, progress=progress)
+    model.seconds["body"] = body_s
+    return model
+
+
 def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSettings | None = None, reduced: ReducedModel | None = None,
                 progress: bool = False, log=None) -> Episode:
     """Solve the scene's load on ``mesh`` with the ``linear`` or ``reduced`` tier; returns the :class:`Episode`.
@@ -330,9 +393,12 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         raise ValueError(f'fidelity.solve.tier = "{settings.tier}": run_episode runs "linear" and "reduced"; use fem.finite_strain for "nonlinear"')
     timings: dict = {}
     lame, rho, e_contact = layer_materials(scene)
-    if body is None:
+    if settings.tier == "reduced" and reduced is None:
+        reduced = build_reduced(scene, mesh, body, settings)
+    if settings.tier == "linear" and body is None:
         body = LinearBody(mesh, lame, rho, settings.element, settings.gravity, settings.backend)
-    timings.update({f"body_{k}": v for k, v in body.seconds.items()})
+    if body is not None:
+        timings.update({f"body_{k}": v for k, v in body.seconds.items()})
     load = scene.load
     shape = shape_from_scene(load.indenter)
     tip_z = float(mesh.points[mesh.faces[mesh.face_tag == FaceTag.ROD_TIP]][..., 2].max())
@@ -340,20 +406,17 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     h = scene.fidelity.mesh.edge_length_mm * 1e-3
     eps = settings.penalty_factor * e_contact / h  # N/m^3
     smooth = 1e-4 * h  # the penalty's smoothing length (fem.condensed._contact_law)
-    t0 = time.perf_counter()
-    faces = condensed.contact_faces(mesh, settings.contact_band_m)
-    all_points = condensed.contact_points(mesh, body.skmesh, body.d, faces)
-    timings["contact_points"] = time.perf_counter() - t0
-
+    # a step may carry the indenter at most this deep into the points as they were (tunnelling guard)
+    jump = min(0.5 * h, 0.25 * min(shape.size_m))
     t0 = time.perf_counter()
     if settings.tier == "reduced":
-        if reduced is None:
-            patches = condensed.group_patches(all_points, settings.patches_per_tip, settings.patches_per_side, tip_z, seed=scene.seed)
-            reduced = ReducedModel.build(body, all_points, patches)
         X, area, rod, C = reduced.X, reduced.area_m2, reduced.rod, reduced.C
         u0 = reduced.point_u_gravity
-        timings["precompute"] = reduced.seconds.get("precompute", time.perf_counter() - t0)
+        timings.update({f"precompute_{k}": v for k, v in reduced.seconds.items()})
+        timings["precompute"] = sum(reduced.seconds.values())
     else:
+        faces = condensed.contact_faces(mesh, settings.contact_band_m)
+        all_points = condensed.contact_points(mesh, body.skmesh, body.d, faces)
         keep = path_points(all_points, shape, load, grid, tip_z, settings.path_margin_m)
         points = all_points.subset(keep)
         X, area, rod = points.X, points.area_m2, points.rod
@@ -366,6 +429,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     # and the frictional Newton on the default slide converges where eps_t = eps_n stalls
     k_t = 0.1 * eps * area
     n_rods = int(mesh.tet_rod.max()) + 1
+    rod_height = scene.sensor.rod.height_mm * 1e-3
 
     steps = grid.step_times_s
     S = len(steps)
@@ -386,7 +450,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         if state.force_target_n is None:
             pose = _pose(state)
             u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
-                                                 max_penetration_m=0.1 * h)
+                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=0.25 * h)
             n_it = info["iterations"]
         else:
             z_free = tip_z + 1e-4 + float(np.abs(u0[:, 2]).max())
@@ -395,7 +459,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             def at_z(z):
                 p = Pose((state.position_m[0], state.position_m[1], z), state.yaw_rad)
                 u, law, info = condensed.solve_path(C, u0, X, shape, p, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
-                                                 max_penetration_m=0.1 * h)
+                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=0.25 * h)
                 count[0] += info["iterations"]
                 return condensed.normal_force(law), (u, law, p)
 
@@ -403,6 +467,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
             target[s] = state.force_target_n
             n_it = count[0]
+        _check_small_strain(u - u0, rod, rod_height, settings.small_strain_limit, case, settings.tier)
         pstate = condensed.PointState(u.copy(), law.f_t.copy())
         pose_old = pose
         forces[s] = law.f
@@ -421,7 +486,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         stress = (reduced.stress_response @ Fp).T.reshape(S, 6, T) + reduced.stress_gravity.reshape(6, T)
         disp = ((reduced.displacement_response @ Fp).T + reduced.displacement_gravity).reshape(S, -1, 3)
         total = forces.sum(axis=1)
-        reaction = -(total + body.weight_n())
+        reaction = -(total + reduced.weight_n)
     else:
         F = body.f_gravity[:, None] + points.W @ forces.reshape(S, 3 * m).T  # (n, S)
         Xs = body.solve(F)
@@ -431,23 +496,41 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         total = forces.sum(axis=1)
     timings["fields"] = time.perf_counter() - t0
     stress = stress.astype(np.float32)
-    lam_t, mu_t = body.lam, body.mu
+    lam_t, mu_t = (body.lam, body.mu) if body is not None else (reduced.lam, reduced.mu)
     vm = fields.von_mises(np.moveaxis(stress, 1, 0)).astype(np.float32)
     sed = fields.strain_energy_density(np.moveaxis(stress, 1, 0).astype(np.float64), lam_t, mu_t).astype(np.float32)
     on_rod = rod >= 0
     rod_force = np.zeros((S, n_rods, 3))
     np.add.at(rod_force, (slice(None), rod[on_rod]), forces[:, on_rod])
     timings["per_frame_ms"] = 1e3 * (timings["contact_steps"] + timings["fields"]) / grid.n_frames
-    episode = Episode(settings.tier, body.element, steps, grid.frame_step, pose_arr, target, stress, vm, sed, disp.astype(np.float32),
-                      rod_force, total, -total[:, 2], reaction, iters, stick, timings)
+    episode = Episode(settings.tier, settings.element, steps, grid.frame_step, pose_arr, target, stress, vm, sed, disp.astype(np.float32),
+                      rod_force, total, -total[:, 2], reaction, iters, stick, mesh.points, mesh.tets, mesh.tet_rod, mesh.layer_fraction,
+                      timings)
     _check_finite(episode)
     return episode
+
+
+def _check_small_strain(du: np.ndarray, rod: np.ndarray, rod_height_m: float, limit: float, case: str, tier: str) -> None:
+    """Refuse a contact displacement beyond ``limit`` x the rod height: a linear body has no
+    rotations, so a rod bent that far neither shortens nor turns its tip away, and an indenter
+    pressed below the tips of rods in its path pushes them along instead of passing over them
+    (seen: rod tips dragged 27 mm by a 1 mm-deep probe sweep). Its stresses would be garbage."""
+    size = np.linalg.norm(du, axis=1)
+    i = int(np.argmax(size))
+    if size[i] > limit * rod_height_m:
+        where = f"rod {int(rod[i])}" if rod[i] >= 0 else "the base"
+        raise SolverError(
+            f"{case}: a contact point of {where} moves {size[i] * 1e3:.2f} mm, {size[i] / rod_height_m:.0%} of the "
+            f"{rod_height_m * 1e3:.1f} mm rod height, beyond fidelity.solve.small_strain_limit = {limit}: the {tier} tier's "
+            "small-strain model is invalid there. An indenter pressed deeper than its edge rounding into rods in its path "
+            "pushes them along; use a shallower press (below the indenter's edge_radius_mm), less friction, a smaller "
+            "slide, or raise small_strain_limit to accept the error")
 
 
 def _check_finite(ep: Episode) -> None:
     for name in _EPISODE_ARRAYS:
         a = getattr(ep, name)
-        if name in ("force_target_n", "stick_fraction"):
+        if name in ("force_target_n", "stick_fraction", "mesh_tets", "tet_rod"):
             continue  # NaN there means "not force controlled" / "no contact"
         if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
             raise SolverError(f"the {ep.tier} solve produced NaN or Inf in {name}")

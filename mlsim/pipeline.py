@@ -133,6 +133,163 @@ def _mesh_summary(result) -> dict:
     return {k: report[k] for k in keys if k in report}
 
 
+# Scene fields that decide the linear body of the solve (materials and the solve's discretisation),
+# not the load: the ``reduced`` tier's precompute is keyed on these and the mesh.
+_BODY_FIELDS = (
+    "sensor.materials",
+    "materials",
+    "fidelity.solve.element_order",
+    "fidelity.solve.formulation",
+    "fidelity.solve.contact_band_mm",
+    "fidelity.solve.patches_per_tip",
+    "fidelity.solve.patches_per_side",
+    "fidelity.solve.gravity",
+    "seed",  # the seeded k-means of the reduced tier's patches
+)
+
+
+def _solve_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from fem.quasistatic import build_reduced, run_episode
+
+    if scene.fidelity.solve.tier == "nonlinear":
+        raise NotImplementedError(
+            'fidelity.solve.tier = "nonlinear" is not wired into the pipeline yet (the finite-strain solver exists for a '
+            'single rod, fem.nonlinear); use tier = "linear" or "reduced"')
+    mesh, _ = inputs["mesh"]
+    reduced = None
+    if scene.fidelity.solve.tier == "reduced":
+        reduced = _cached_reduced(scene, mesh, ctx)
+    return run_episode(scene, mesh, reduced=reduced, progress=ctx.progress, log=ctx.log)
+
+
+def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
+    """The reduced tier's precompute, from the cache when this mesh and body were seen before (it does
+    not depend on the load, so a dataset of episodes on one sensor pays for it once)."""
+    import hashlib
+
+    from fem.quasistatic import ReducedModel, build_reduced
+
+    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(_BODY_FIELDS), "version": "1"}
+    key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+    stage = _REDUCED_MODEL
+    if ctx.cache.has(stage.name, key):
+        return ctx.cache.fetch(stage, key)
+    ctx.log("[solve] reduced tier: precomputing the unit-patch responses (cached for this sensor)")
+    model = build_reduced(scene, mesh)
+    ctx.cache.store(stage, key, model)
+    return model
+
+
+def _solve_save(episode, directory: Path) -> None:
+    episode.save(directory / "episode.npz")
+
+
+def _solve_load(directory: Path):
+    from fem.quasistatic import Episode
+
+    return Episode.load(directory / "episode.npz")
+
+
+def _solve_write(episode, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from fem.vtk_series import write_episode
+
+    files = write_episode(episode, out_dir / "solve", stem="solve")
+    files.append(_write_solve_csv(episode, out_dir / "solve_forces.csv"))
+    files.append(_plot_solve(episode, out_dir / "solve_forces.png"))
+    return files
+
+
+def _write_solve_csv(ep, path: Path) -> Path:
+    """Per frame: time, indenter pose, forces, contact iterations, stick fraction, peak von Mises."""
+    import io
+
+    import numpy as np
+
+    k = ep.frame_step
+    cols = {
+        "frame": np.arange(ep.n_frames),
+        "t_s": ep.t_s[k],
+        "indenter_x_mm": ep.pose[k, 0] * 1e3,
+        "indenter_y_mm": ep.pose[k, 1] * 1e3,
+        "indenter_z_mm": ep.pose[k, 2] * 1e3,
+        "indenter_yaw_deg": np.degrees(ep.pose[k, 3]),
+        "normal_force_n": ep.normal_force_n[k],
+        "contact_fx_n": ep.contact_force_n[k, 0],
+        "contact_fy_n": ep.contact_force_n[k, 1],
+        "contact_fz_n": ep.contact_force_n[k, 2],
+        "reaction_x_n": ep.reaction_n[k, 0],
+        "reaction_y_n": ep.reaction_n[k, 1],
+        "reaction_z_n": ep.reaction_n[k, 2],
+        "peak_von_mises_kpa": ep.von_mises[k].max(axis=1) / 1e3,
+        "contact_iterations": ep.iterations[k],
+        "stick_fraction": ep.stick_fraction[k],
+    }
+    for r in range(ep.rod_force_n.shape[1]):
+        cols[f"rod{r}_normal_force_n"] = -ep.rod_force_n[k, r, 2]
+    buf = io.StringIO()
+    buf.write(",".join(cols) + "\n")
+    np.savetxt(buf, np.column_stack(list(cols.values())), delimiter=",", fmt="%.9g")
+    _atomic_bytes(path, buf.getvalue().encode())
+    return path
+
+
+def _plot_solve(ep, path: Path) -> Path:
+    """Forces and per-rod peak stress over the episode, one PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+    import numpy as np
+
+    k = ep.frame_step
+    t = ep.t_s[k] * 1e3
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4), constrained_layout=True)
+    ax[0].plot(t, ep.normal_force_n[k], "k-o", ms=3, label="normal (-z)")
+    ax[0].plot(t, ep.contact_force_n[k, 0], "-s", ms=3, label="x")
+    ax[0].plot(t, ep.contact_force_n[k, 1], "-^", ms=3, label="y")
+    ax[0].set(xlabel="time (ms)", ylabel="contact force on the sensor (N)", title=f"{ep.tier} tier, {ep.element}")
+    ax[0].legend()
+    rods = -ep.rod_force_n[k, :, 2]
+    im = ax[1].imshow(rods.T, aspect="auto", origin="lower", extent=(t[0], t[-1], -0.5, rods.shape[1] - 0.5), cmap="viridis")
+    fig.colorbar(im, ax=ax[1], label="normal force (N)")
+    ax[1].set(xlabel="time (ms)", ylabel="rod", title="normal force per rod")
+    ax[1].yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+    peaks = ep.rod_peaks()
+    n = len(peaks["von_mises_kpa"])
+    side = int(round(np.sqrt(n)))
+    if side * side == n:  # a square array: rod r at row r // side, column r % side
+        im = ax[2].imshow(np.reshape(peaks["ml_von_mises_kpa"], (side, side)), origin="lower", cmap="magma")
+        fig.colorbar(im, ax=ax[2], label="peak von Mises in the ML layer (kPa)")
+        ax[2].set(title="per-rod peak ML-layer stress", xlabel="column", ylabel="row", xticks=range(side), yticks=range(side))
+    else:
+        ax[2].bar(np.arange(n), peaks["ml_von_mises_kpa"])
+        ax[2].set(xlabel="rod", ylabel="peak von Mises in the ML layer (kPa)")
+    tmp = path.with_name(f".{path.stem}.part.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def _solve_summary(episode) -> dict:
+    return episode.summary()
+
+
+def _reduced_save(model, directory: Path) -> None:
+    model.save(directory / "reduced.npz")
+
+
+def _reduced_load(directory: Path):
+    from fem.quasistatic import ReducedModel
+
+    return ReducedModel.load(directory / "reduced.npz")
+
+
+# Not a stage of the plan (its need depends on the tier): the solve stage caches it through this.
+_REDUCED_MODEL = Stage(name="reduced_model", doc="reduced tier precompute", reads=(), needs=(), run=lambda *a: None,
+                       save=_reduced_save, load=_reduced_load)
+
 _STAGE_LIST = [
     Stage(
         name="geometry",
@@ -162,6 +319,17 @@ _STAGE_LIST = [
         load=_mesh_load,
         write=_mesh_write,
         summarize=_mesh_summary,
+    ),
+    Stage(
+        name="solve",
+        doc="quasi-static FEM of the rods under the scene's load, per frame; writes a VTU time series, forces CSV and plot",
+        reads=_BODY_FIELDS + ("load", "camera.fps", "fidelity.solve", "fidelity.mesh.edge_length_mm"),
+        needs=("mesh",),
+        run=_solve_run,
+        save=_solve_save,
+        load=_solve_load,
+        write=_solve_write,
+        summarize=_solve_summary,
     ),
 ]
 

@@ -366,6 +366,9 @@ class SolveFidelity(_Model):
     patches_per_tip: Annotated[int, Strict(), Field(ge=1, le=64)] = 7  # reduced tier
     patches_per_side: Annotated[int, Strict(), Field(ge=1, le=64)] = 8  # reduced tier
     gravity: Bool = True
+    # linear/reduced tiers: refuse a step where a contact point moves more than this fraction of the
+    # rod height (small-strain kinematics are no longer valid there; see fem.quasistatic)
+    small_strain_limit: Annotated[float, Strict(), Field(gt=0.0, le=10.0)] = 0.5
 
 
 class RenderFidelity(_Model):

@@ -72,15 +72,17 @@ def test_friction_stick_then_slip(tiny_mesh, body):
     assert np.all(np.isfinite(ep.stress))
 
 
-@pytest.mark.parametrize("case, segs", [
-    ("zero load", [{"kind": "hold", "duration_s": 0.1}]),
+@pytest.mark.parametrize("case, segs, friction", [
+    ("zero load", [{"kind": "hold", "duration_s": 0.1}], 0.8),
+    # 2 mm per frame diagonally; mu 0.3 keeps the stick drag (about mu x 17 x 0.3 mm for these rods,
+    # axially 17x stiffer than in bending) inside small strain: at mu 0.8 the guard refuses it
     ("2 mm per frame", [{"kind": "press", "depth_mm": 0.8, "speed_mm_s": 8.0},
-                        {"kind": "slide", "distance_mm": 8.0, "speed_mm_s": 60.0, "direction_deg": 45.0}]),
-    ("deep press", [{"kind": "press", "depth_mm": 3.5, "speed_mm_s": 35.0}]),
+                        {"kind": "slide", "distance_mm": 8.0, "speed_mm_s": 60.0, "direction_deg": 45.0}], 0.3),
+    ("deep press", [{"kind": "press", "depth_mm": 3.5, "speed_mm_s": 35.0}], 0.8),
 ])
-def test_extreme_loads_converge_and_stay_finite(tiny_mesh, body, case, segs):
+def test_extreme_loads_converge_and_stay_finite(tiny_mesh, body, case, segs, friction):
     scene0, _, mesh, _ = tiny_mesh
-    scene = _scene(scene0, segs, friction=0.8, diameter_mm=12.0)
+    scene = _scene(scene0, segs, friction=friction, diameter_mm=12.0)
     ep = qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False))
     for name in ("stress", "von_mises", "sed", "displacement", "rod_force_n", "reaction_n"):
         assert np.all(np.isfinite(getattr(ep, name))), f"{case}: {name} has NaN or Inf"
@@ -89,6 +91,18 @@ def test_extreme_loads_converge_and_stay_finite(tiny_mesh, body, case, segs):
         assert np.all(ep.contact_force_n == 0) and np.all(ep.stress == 0)
     else:
         assert ep.normal_force_n.max() > 0
+
+
+def test_ten_times_the_largest_design_load_is_refused_clearly_not_nan(tiny_mesh, body):
+    """160 N (10 x the 16 N top of SPEC 1.3's force range) on four rods would shorten them by more
+    than half their height: the force-controlled solve must stop with a SolverError that names the
+    step and the limit, not return garbage."""
+    from fem.nonlinear import SolverError
+
+    scene0, _, mesh, _ = tiny_mesh
+    scene = _scene(scene0, [{"kind": "press", "force_n": 160.0, "duration_s": 0.2}], friction=0.5, diameter_mm=12.0)
+    with pytest.raises(SolverError, match=r"step \d+ \(t = .* ms\).*small_strain_limit"):
+        qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False))
 
 
 def test_force_controlled_press_reaches_the_ramp(tiny_mesh, body):

@@ -27,8 +27,8 @@ def test_shipped_scenes_load_with_spec_values():
     assert s.pitch_x_mm == pytest.approx(36.0 / 5)  # SPEC 1.1: pitch follows from the 36 mm width
     assert s.rod.diameter_mm == 5.0 and s.rod.height_mm == 9.0
     assert scene.load.indenter.tip_diameter_mm == pytest.approx(2 * math.sqrt(500 / math.pi))
-    # press 1.5 mm at 10 mm/s + hold 0.2 s + slide 24 mm at 200 mm/s + release 2 mm at 10 mm/s
-    assert scene.load.duration_s == pytest.approx(0.15 + 0.2 + 0.12 + 0.2)
+    # press 1.5 mm at 10 mm/s + hold 0.1 s + slide 1.5 mm at 15 mm/s + rotate 6 deg at 60 deg/s + release 2 mm at 10 mm/s
+    assert scene.load.duration_s == pytest.approx(0.15 + 0.1 + 0.1 + 0.1 + 0.2)
     tiny = load_scene(TINY)
     assert tiny.sensor.size_x_mm == pytest.approx(14.4)
 
