@@ -149,7 +149,7 @@ _BODY_FIELDS = (
 
 
 def _solve_run(scene: Scene, inputs: dict, ctx: "RunContext"):
-    from fem.quasistatic import build_reduced, run_episode
+    from fem.quasistatic import run_episode
 
     if scene.fidelity.solve.tier == "nonlinear":
         raise NotImplementedError(
@@ -167,7 +167,7 @@ def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
     not depend on the load, so a dataset of episodes on one sensor pays for it once)."""
     import hashlib
 
-    from fem.quasistatic import ReducedModel, build_reduced
+    from fem.quasistatic import build_reduced
 
     payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(_BODY_FIELDS), "version": "1"}
     key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
