@@ -85,7 +85,7 @@ def main() -> None:
     }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "tiers.json").write_text(json.dumps(result, indent=2))
+    (out / "tiers.json").write_text(json.dumps(result, indent=2, default=lambda o: o.item() if hasattr(o, "item") else str(o)))
     print(f"machine: {result['machine']}")
     print(f"mesh: {result['mesh']}; assembly {body.seconds['assemble']:.2f} s, factorisation {body.seconds['factorise']:.2f} s")
     print("| tier | precompute (s) | per frame (ms, median) | contact / fields (ms) | frames/s | contact iterations |")

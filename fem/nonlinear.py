@@ -51,8 +51,9 @@ class SolverError(MlsimError):
 
 
 def _kinematics(w):
-    F = _identity_like(w.prev.grad) + w.prev.grad
-    return F, det(F), inv(F)
+    # F, J and F^-1 at the quadrature points, computed once per assembly (residual_and_tangent) and
+    # passed in: a bilinear form is evaluated once per pair of basis functions (900 for P2 vectors)
+    return w.F, w.J, w.Finv
 
 
 def _identity_like(g):
@@ -93,6 +94,34 @@ def _tangent_pp(dp, q, w):
     return -(w.s * w.s) * dp * q / w.lam
 
 
+def tangent_uu(basis, mu_q: np.ndarray, p_q: np.ndarray, s: float, Finv: np.ndarray) -> sp.csr_matrix:
+    """K_uu of :data:`_tangent_uu`, assembled without scikit-fem's per-pair loop (same matrix, tested).
+
+    A vector basis function is a scalar one times a unit vector, grad v = e_a grad(phi_i)^T, so
+    tr(F^-1 grad v F^-1 grad du) = (F^-T grad phi_j)_a (F^-T grad phi_i)_b for du = e_b phi_j: the
+    geometric term is an outer product of "spatial" scalar gradients, and the whole element matrix
+    is two batched products over the quadrature points (scikit-fem evaluates the form once per pair
+    of the 30 vector functions: 900 small 3 x 3 matrix products per point; 10x slower on the sensor).
+    basis: the P2 vector basis (local function 3 i + a: scalar function i, component a);
+    mu_q, p_q: (E, Q) Pa and scaled pressure; Finv: (3, 3, E, Q).
+    """
+    nb = basis.Nbfun // 3
+    G = np.stack([np.asarray(basis.basis[3 * i][0].grad[0]) for i in range(nb)])  # (nb, 3, E, Q): grad phi_i
+    g = np.einsum("kaeq,ikeq->eqia", Finv, G)  # (E, Q, nb, 3): F^-T grad phi_i
+    dx = basis.dx  # (E, Q)
+    E = dx.shape[0]
+    lap = np.einsum("ikeq,jkeq,eq->eij", G, G, mu_q * dx)  # (E, nb, nb): mu grad phi_i . grad phi_j
+    c = ((mu_q - s * p_q) * dx)[:, :, None]
+    # geo[e, i, b, j, a] = sum_q c g_i[b] g_j[a]: a batched (3 nb x Q) @ (Q x 3 nb) product
+    geo = np.matmul(g.reshape(E, -1, 3 * nb).transpose(0, 2, 1), c * g.reshape(E, -1, 3 * nb)).reshape(E, nb, 3, nb, 3)
+    K = geo.transpose(0, 1, 4, 3, 2) + lap[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]  # [e, i, a, j, b]
+    dofs = basis.element_dofs.T  # (E, 3 nb), local index 3 i + a
+    rows = np.broadcast_to(dofs[:, :, None], (E, 3 * nb, 3 * nb))
+    cols = np.broadcast_to(dofs[:, None, :], (E, 3 * nb, 3 * nb))
+    n = basis.N
+    return sp.coo_matrix((K.reshape(-1), (rows.reshape(-1), cols.reshape(-1))), shape=(n, n)).tocsr()
+
+
 def residual_and_tangent(d: Discretisation, x: np.ndarray, lam, mu, with_tangent: bool = True):
     """Internal residual (n,) and tangent (CSR) at state x = [u; p / scale] of a P2P1 discretisation.
 
@@ -103,17 +132,20 @@ def residual_and_tangent(d: Discretisation, x: np.ndarray, lam, mu, with_tangent
     s = d.pressure_scale
     u, ph = x[: d.n_u], x[d.n_u :]
     prev = d.u.interpolate(u)
-    J = det(_identity_like(prev.grad) + prev.grad)
+    F = _identity_like(prev.grad) + prev.grad
+    J = det(F)
     if not np.all(J > 0):
         raise FloatingPointError(f"det F <= 0 at {int(np.sum(~(J > 0)))} quadrature point(s)")
+    Finv = inv(F)
     lam_q, mu_q = _per_qp(lam, d.u), _per_qp(mu, d.u)
     p_q = np.asarray(d.p.interpolate(ph))
-    kw = dict(prev=prev, p=p_q, lam=lam_q, mu=mu_q, s=s)
-    r = np.concatenate([skfem.asm(_residual_u, d.u, **kw), skfem.asm(_residual_p, d.p, prev=prev, p=p_q, lam=lam_q, s=s)])
+    kin = dict(F=F, J=J, Finv=Finv)
+    kw = dict(p=p_q, lam=lam_q, mu=mu_q, s=s, **kin)
+    r = np.concatenate([skfem.asm(_residual_u, d.u, **kw), skfem.asm(_residual_p, d.p, p=p_q, lam=lam_q, s=s, **kin)])
     if not with_tangent:
         return r, None
-    kuu = skfem.asm(_tangent_uu, d.u, **kw)
-    kup = skfem.asm(_tangent_up, d.p, d.u, prev=prev, s=s)
+    kuu = tangent_uu(d.u, np.asarray(mu_q), p_q, s, np.asarray(Finv))
+    kup = skfem.asm(_tangent_up, d.p, d.u, s=s, **kin)
     kpp = skfem.asm(_tangent_pp, d.p, lam=_per_qp(lam, d.p), s=s)
     return r, sp.bmat([[kuu, kup], [kup.T, kpp]], format="csr")
 

@@ -99,9 +99,10 @@ class LinearBody:
     density_by_layer: three kg/m^3 (gravity acts along -z when ``gravity``).
     """
 
-    def __init__(self, mesh, lame_by_layer, density_by_layer, element: str = "P2P1", gravity: bool = True, backend: str = "auto", log=None):
+    def __init__(self, mesh, lame_by_layer, density_by_layer, element: str = "P2P1", gravity: bool = True, backend: str = "auto", log=None,
+                 factorise: bool = True):
         from fem.geometry import FaceTag
-        from fem.linsolve import factorise
+        from fem.linsolve import factorise as factorise_matrix
 
         t0 = time.perf_counter()
         self.mesh = mesh
@@ -117,7 +118,7 @@ class LinearBody:
         self.free = np.setdiff1d(np.arange(self.d.n_dofs), self.fixed)
         self.seconds = {"assemble": time.perf_counter() - t0}
         t0 = time.perf_counter()
-        self.factor = factorise(self.K[self.free][:, self.free], definite=self.d.p is None, backend=backend)
+        self.factor = factorise_matrix(self.K[self.free][:, self.free], definite=self.d.p is None, backend=backend) if factorise else None
         self.seconds["factorise"] = time.perf_counter() - t0
         self.S = fields.stress_operator(self.d, self.lam, self.mu)
         self.f_gravity = np.zeros(self.d.n_dofs)
@@ -389,8 +390,12 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     settings = settings or SolveSettings.from_scene(scene)
     if scene.load is None:
         raise ValueError("load: the scene has no load; add a [load] section with an indenter and segments")
+    if settings.tier == "nonlinear":
+        from fem.finite_strain import run_nonlinear_episode
+
+        return run_nonlinear_episode(scene, mesh, settings, progress=progress)
     if settings.tier not in ("linear", "reduced"):
-        raise ValueError(f'fidelity.solve.tier = "{settings.tier}": run_episode runs "linear" and "reduced"; use fem.finite_strain for "nonlinear"')
+        raise ValueError(f'fidelity.solve.tier = "{settings.tier}": choose "reduced", "linear" or "nonlinear"')
     timings: dict = {}
     lame, rho, e_contact = layer_materials(scene)
     if settings.tier == "reduced" and reduced is None:

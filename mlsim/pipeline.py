@@ -151,10 +151,6 @@ _BODY_FIELDS = (
 def _solve_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from fem.quasistatic import run_episode
 
-    if scene.fidelity.solve.tier == "nonlinear":
-        raise NotImplementedError(
-            'fidelity.solve.tier = "nonlinear" is not wired into the pipeline yet (the finite-strain solver exists for a '
-            'single rod, fem.nonlinear); use tier = "linear" or "reduced"')
     mesh, _ = inputs["mesh"]
     reduced = None
     if scene.fidelity.solve.tier == "reduced":

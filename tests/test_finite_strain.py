@@ -1,0 +1,70 @@
+"""The ``nonlinear`` tier on the 2 x 2 tiny sensor (fem.finite_strain): agreement with the linear
+tier at small load, neo-Hookean stiffening at large compression, equilibrium, Coulomb slip."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fem import quasistatic as qs
+from fem.finite_strain import run_nonlinear_episode
+from mlsim.scene import scene_from_dict
+
+
+def _scene(tiny_scene, segments, friction=0.0, diameter_mm=40.0, substeps=1):
+    data = tiny_scene.model_dump(mode="json", exclude_none=True)
+    data["load"] = {"indenter": {"shape": "flat", "diameter_mm": diameter_mm}, "start_xy_mm": [0.0, 0.0], "start_gap_mm": 0.5,
+                    "friction_coefficient": friction, "segments": segments}
+    data["fidelity"]["solve"] = {"tier": "nonlinear", "gravity": False, "substeps": substeps}
+    return scene_from_dict(data)
+
+
+def _linear(scene, mesh):
+    return qs.run_episode(scene, mesh, settings=qs.SolveSettings(tier="linear", gravity=False, substeps=scene.fidelity.solve.substeps))
+
+
+def test_small_press_agrees_with_the_linear_tier(tiny_mesh):
+    """A 0.05 mm press (0.5 % strain): the finite-strain answer is the linear one to within 1 %."""
+    scene0, _, mesh, _ = tiny_mesh
+    scene = _scene(scene0, [{"kind": "press", "depth_mm": 0.55, "speed_mm_s": 5.5}])
+    nl = run_nonlinear_episode(scene, mesh)
+    lin = _linear(scene, mesh)
+    assert lin.normal_force_n[-1] > 0.1
+    assert nl.normal_force_n[-1] == pytest.approx(lin.normal_force_n[-1], rel=0.01)
+    assert nl.von_mises[-1].mean() == pytest.approx(lin.von_mises[-1].mean(), rel=0.01)
+    np.testing.assert_allclose(nl.frames("displacement")[-1], lin.frames("displacement")[-1], atol=0.01 * np.abs(lin.displacement).max())
+    # no gravity: the clamp balances the contact force
+    # (to the Newton tolerance: the free DOFs' residual, 1e-8 of the load, sums over ~10^4 DOFs)
+    np.testing.assert_allclose(nl.reaction_n + nl.contact_force_n, 0.0, atol=1e-5 * nl.normal_force_n.max())
+    assert nl.tier == "nonlinear" and np.all(nl.iterations[nl.normal_force_n > 0] <= 10)
+
+
+def test_deep_press_stiffens_as_a_neo_hookean_solid(tiny_mesh):
+    """A 3 mm press on rods 9 mm tall on a 2 mm base: nominal strain e = 3 / 11. Under uniaxial
+    compression an incompressible neo-Hookean solid carries mu (s - s^-2) at stretch s = 1 - e, the
+    linear solid 3 mu (s - 1): the ratio 1.42 at this strain. The rods are neither free nor uniaxial
+    (bonded base, bulging), so the force ratio nonlinear / linear is asserted within 10 % of that."""
+    scene0, _, mesh, _ = tiny_mesh
+    scene = _scene(scene0, [{"kind": "press", "depth_mm": 3.5, "speed_mm_s": 35.0}])
+    nl = run_nonlinear_episode(scene, mesh)
+    lin = _linear(scene, mesh)
+    s = 1.0 - 3.0 / 11.0
+    expected = (s - s**-2) / (3.0 * (s - 1.0))
+    assert nl.normal_force_n[-1] / lin.normal_force_n[-1] == pytest.approx(expected, rel=0.10)
+    for name in ("stress", "von_mises", "sed", "displacement"):
+        assert np.all(np.isfinite(getattr(nl, name)))
+    assert np.all(nl.sed >= 0.0)  # an energy density is not negative
+
+
+def test_friction_slip_on_the_nonlinear_tier(tiny_mesh):
+    """As the linear tier's test: a probe pressed on the tips and slid ends in gross slip with
+    the tangential force mu times the normal force (within 2 %) after 8 mm."""
+    scene0, _, mesh, _ = tiny_mesh
+    mu = 0.5
+    segs = [{"kind": "press", "depth_mm": 0.7, "speed_mm_s": 7.0}, {"kind": "slide", "distance_mm": 8.0, "speed_mm_s": 40.0}]
+    nl = run_nonlinear_episode(_scene(scene0, segs, friction=mu, substeps=2), mesh)
+    ratio = np.hypot(nl.contact_force_n[:, 0], nl.contact_force_n[:, 1]) / np.maximum(nl.normal_force_n, 1e-12)
+    end = np.argmin(abs(nl.t_s - 0.3))
+    assert ratio[end] == pytest.approx(mu, rel=0.02)
+    assert nl.stick_fraction[end] == 0.0
+    assert nl.contact_force_n[end, 0] > 0
