@@ -1,4 +1,4 @@
-"""Command line: ``mlsim run | check | mesh``.
+"""Command line: ``mlsim run | check | mesh | accuracy``.
 
 Exit codes: 0 success, 2 bad input (an invalid scene or argument; the message names the field),
 1 failure (a stage could not finish; the message says what to try). Unexpected errors are bugs:
@@ -156,6 +156,34 @@ def cmd_mesh(args) -> int:
     return code
 
 
+def cmd_accuracy(args) -> int:
+    from mlsim.accuracy import ERRORS, solve_accuracy
+
+    if args.stage != "solve":
+        raise SceneError([Problem("--stage", args.stage, "only the solve stage has an accuracy study so far; use --stage solve")])
+    scene = _load(args)
+    out_dir = Path(args.out) if args.out else Path("out") / f"{scene.name}_accuracy"
+    reference = None
+    if args.reference:
+        parts = args.reference.split(",")
+        if len(parts) != 3:
+            raise SceneError([Problem("--reference", args.reference, "expected EDGE_MM,ORDER,TIER, e.g. 1.5,2,nonlinear")])
+        reference = (float(parts[0]), int(parts[1]), parts[2].strip())
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    rows = solve_accuracy(scene, args.edges, tuple(args.orders), tuple(args.tiers), reference, out_dir, _cache(args),
+                          progress=not args.quiet, log=log)
+    print(f"{'edge mm':>8} {'order':>5} {'tier':>9} {'tets':>7} {'ms/frame':>9} {'pre s':>7} " + " ".join(f"{e:>20}" for e in ERRORS))
+    for r in rows:
+        if r.failed:
+            print(f"{r.edge_length_mm:>8g} {r.element_order:>5} {r.tier:>9}  failed: {r.failed}")
+            continue
+        errs = " ".join(f"{r.errors[e]:>19.3e}{'*' if r.errors.get(e + '_pareto') else ' '}" for e in ERRORS)
+        print(f"{r.edge_length_mm:>8g} {r.element_order:>5} {r.tier:>9} {r.n_tets:>7} {r.per_frame_ms:>9.1f} {r.precompute_s:>7.1f} {errs}"
+              + ("   (reference)" if r.reference else ""))
+    print(f"(* = on the Pareto front)  wrote {out_dir / 'accuracy_solve.csv'}, .json, .png")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mlsim", description="Simulate the mechanoluminescent visuotactile sensor.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -183,6 +211,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cache", help="cache directory")
     p.add_argument("--dry-run", action="store_true", help="print the plan only")
     p.set_defaults(func=cmd_mesh)
+
+    p = sub.add_parser("accuracy", help="error against run time of a stage's fidelity knobs (table, CSV, log-log plot)")
+    common(p)
+    p.add_argument("--stage", default="solve", help="the stage to study (solve)")
+    p.add_argument("--edges", type=float, nargs="+", default=[2.5, 2.0, 1.5], metavar="MM", help="mesh edge lengths")
+    p.add_argument("--orders", type=int, nargs="+", default=[1, 2], choices=[1, 2], help="element orders")
+    p.add_argument("--tiers", nargs="+", default=["reduced", "linear", "nonlinear"], choices=["reduced", "linear", "nonlinear"])
+    p.add_argument("--reference", help="EDGE_MM,ORDER,TIER (default: the finest edge, order 2, nonlinear)")
+    p.add_argument("--out", help="output directory (default out/<scene name>_accuracy)")
+    p.add_argument("--cache", help="cache directory")
+    p.set_defaults(func=cmd_accuracy)
     return parser
 
 

@@ -291,6 +291,37 @@ class LoadSpec(_Model):
         return sum(s.seconds for s in self.segments)
 
 
+# -------------------------------------------------------------------------------- verification
+class VerifyS2Spec(_Model):
+    """The published FEM set-up of SPEC 1.4, a verification case (``outputs = ["verify_s2"]``):
+    a lateral force on a rod standing on a slab ("sliding") against the same force on a steel block
+    bonded to a slab ("pressing"). The slab spans x, y in [0, size] and z in [0, thickness]; rod
+    and block stand at the slab's centre; the force acts along +x at ``force_height_mm`` above the
+    slab's top. The slab's bottom is fixed; gravity acts. Lengths in mm."""
+
+    slab_size_mm: tuple[Pos, Pos, Pos] = (10.0, 10.0, 2.0)  # x, y, thickness
+    rod_diameter_mm: Pos = 4.0
+    rod_height_mm: Pos = 8.0
+    block_size_mm: tuple[Pos, Pos, Pos] = (2.0, 2.0, 4.0)
+    force_height_mm: Pos = 2.0
+    forces_n: Annotated[tuple[Pos, ...], Field(min_length=1)] = (1.0, 2.0, 4.0, 8.0, 16.0)
+    profile_x_mm: tuple[Float, Float] = (1.0, 9.0)  # the top-surface profile: x range at y = centre
+    profile_points: Annotated[int, Strict(), Field(ge=2, le=10000)] = 81
+    slab_material: str = "PDMS"
+    block_material: str = "steel"
+    edge_length_mm: Pos = 0.5
+    tiers: Annotated[tuple[Literal["linear", "nonlinear"], ...], Field(min_length=1)] = ("linear", "nonlinear")
+
+    @model_validator(mode="after")
+    def _fits(self):
+        sx, sy, _ = self.slab_size_mm
+        if self.rod_diameter_mm >= min(sx, sy) or max(self.block_size_mm[:2]) >= min(sx, sy):
+            raise ValueError("the rod and the block must fit on the slab: rod_diameter_mm and block_size_mm[:2] < slab_size_mm[:2]")
+        if self.force_height_mm >= min(self.rod_height_mm, self.block_size_mm[2]):
+            raise ValueError("force_height_mm must be below the rod's and the block's tops")
+        return self
+
+
 # ------------------------------------------------------------------------------ optics and camera
 ABSORBERS = ("black_silicone_pigment", "uv_opaque_colorant", "carbon_nanotubes", "water_based_ink", "none")
 
@@ -400,6 +431,7 @@ class Scene(_Model):
     ambient: AmbientSpec = AmbientSpec()
     dllm: DllmSpec = DllmSpec()
     fidelity: FidelitySpec = FidelitySpec()
+    verify_s2: VerifyS2Spec | None = None
     outputs: tuple[str, ...] = ("mesh",)
 
     # -- access ---------------------------------------------------------------------------------
