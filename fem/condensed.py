@@ -390,6 +390,7 @@ def solve_path(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case:
 
 def _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, max_depth, max_penetration_m, max_jump_m, **kw):
     """:func:`solve_path` over the two halves of the move, the second from the first's state."""
+    kw.pop("guess", None)  # a starting guess for the whole move is not one for its halves
     mid = Pose(tuple(0.5 * (np.asarray(pose.position_m) + np.asarray(pose_old.position_m))), 0.5 * (pose.yaw_rad + pose_old.yaw_rad))
     u1, law1, i1 = solve_path(C, u0, X, shape, mid, pose_old, state, friction, k_n, k_t, case, max_depth - 1, max_penetration_m, max_jump_m, **kw)
     u2, law2, i2 = solve_path(C, u0, X, shape, pose, mid, PointState(u1.copy(), law1.f_t.copy()), friction, k_n, k_t, case, max_depth - 1,

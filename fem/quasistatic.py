@@ -447,6 +447,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     pstate = condensed.PointState(u0.copy(), np.zeros((m, 3)))
     pose_old = _pose(state)
     normal_now = 0.0
+    u_last, last_move = None, None
     bar = _bar(progress, S, f"solve ({settings.tier})")
     t_loop = time.perf_counter()
     for s, t in enumerate(steps):
@@ -454,8 +455,14 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         case = f"step {s} (t = {t * 1e3:.1f} ms)"
         if state.force_target_n is None:
             pose = _pose(state)
+            move = np.array([*pose.position_m, pose.yaw_rad]) - np.array([*pose_old.position_m, pose_old.yaw_rad])
+            guess = None
+            if u_last is not None and np.any(move != 0) and np.allclose(move, last_move, rtol=1e-9, atol=1e-15):
+                guess = 2.0 * pstate.u - u_last  # the same motion as the last step: extrapolate
+            u_before = pstate.u
             u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
-                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=0.25 * h)
+                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=0.25 * h, guess=guess)
+            u_last, last_move = u_before, move
             n_it = info["iterations"]
         else:
             z_free = tip_z + 1e-4 + float(np.abs(u0[:, 2]).max())
@@ -472,6 +479,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
             target[s] = state.force_target_n
             n_it = count[0]
+            u_last = None
         _check_small_strain(u - u0, rod, rod_height, settings.small_strain_limit, case, settings.tier)
         pstate = condensed.PointState(u.copy(), law.f_t.copy())
         pose_old = pose
