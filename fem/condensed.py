@@ -174,12 +174,13 @@ def group_patches(points: ContactPoints, per_rod_tip: int, per_rod_side: int, to
 # ------------------------------------------------------------------------------- the point solver
 @dataclass
 class _Law:
-    f: np.ndarray  # (m, 3) force on the body
+    f: np.ndarray  # (m, 3) force on the body at each point
     D: np.ndarray  # (m, 3, 3) df/du
     fn: np.ndarray  # (m,)
     touching: np.ndarray
     stick: np.ndarray
     f_t: np.ndarray
+    f_unknowns: np.ndarray | None = None  # the forces summed per unknown (per group when grouped)
 
 
 def _normal_gradient(shape: IndenterShape, pose: Pose, x: np.ndarray) -> np.ndarray:
@@ -273,8 +274,13 @@ def solve_points(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, gue
 def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: IndenterShape, pose: Pose, pose_old: Pose, state: PointState,
                  friction: float, k_n: np.ndarray, k_t: np.ndarray, guess: np.ndarray | None = None,
                  tol_m: float = 1e-12, rtol: float = 1e-8, max_iterations: int = 200, case: str = "contact step", smooth_m: float = 1e-7,
-                 max_step_m: float | None = None):
+                 max_step_m: float | None = None, groups: np.ndarray | None = None):
     """Solve u = u0 + C f(u) for the points' displacements u (m, 3) at indenter ``pose``.
+
+    With ``groups`` (m,) the unknowns are per group (patch) instead: u, u0 (M, 3), C (3 M, 3 M),
+    every point of group g moves with u[g], and the group's force is the sum of its points' (the
+    contact is evaluated at each point, the elasticity per patch: a patch straddling the edge of
+    an indenter carries the force of the points that touch).
 
     C: (3 m, 3 m) point compliance (m/N), point-major. u0: (m, 3) displacements without contact
     forces. state: the points' state at ``pose_old`` (the previous converged step). k_n, k_t: (m,)
@@ -284,17 +290,26 @@ def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: Indenter
     Newton step can land in their basin. Returns (u, law at u, info dict:
     iterations, residual 2-norms). Raises SolverError on failure.
     """
-    m = len(X)
+    m = len(u0)
     drag = rigid_motion(pose_old, pose, X + state.u)
-    u = (state.u if guess is None else guess).copy()
+    if guess is not None:
+        u = guess.copy()
+    elif groups is None:
+        u = state.u.copy()
+    else:  # every point of a group moved with it: any member's displacement is the group's
+        u = np.zeros((m, 3))
+        u[groups] = state.u
     if not np.all(np.isfinite(u0)):
         raise SolverError(f"{case}: the load gives NaN or Inf displacements")
+    at_points = (lambda v: v) if groups is None else (lambda v: v[groups])
+    to_unknowns = (lambda v: v) if groups is None else (lambda v: _group_sum(v, groups, m))
 
     def residual(u, predictor=False):
-        law = _contact_law(X, u, shape, pose, drag, state, friction, k_n, k_t, predictor, smooth_m)
+        law = _contact_law(X, at_points(u), shape, pose, drag, state, friction, k_n, k_t, predictor, smooth_m)
+        law.f_unknowns = to_unknowns(law.f)
         r = u - u0
         if law.touching.any():  # f is zero off contact: one product with the whole C beats copying its columns
-            r = r - (C @ law.f.ravel()).reshape(m, 3)
+            r = r - (C @ law.f_unknowns.ravel()).reshape(m, 3)
         return r, law
 
     r, law = residual(u, predictor=True)
@@ -305,14 +320,14 @@ def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: Indenter
     while it < max_iterations:
         if float(np.abs(r).max()) <= max(tol_m, rtol * scale):
             break
-        a = np.flatnonzero(law.touching)
+        a = np.flatnonzero(to_unknowns(law.touching.astype(float)) > 0)
         if len(a) == 0:
             du = -r
         else:
             # Newton on the active points: (I - C_aa D_a) du_a = -r_a, D block-diagonal (3 x 3 per point);
             # the others follow, du = -r + C_:a D_a du_a
             cols = (3 * a[:, None] + np.arange(3)).ravel()
-            Dblk = law.D[a]  # (na, 3, 3)
+            Dblk = to_unknowns(law.D)[a]  # (na, 3, 3)
             J = np.eye(len(cols)) - np.einsum("pjd,jde->pje", C[np.ix_(cols, cols)].reshape(len(cols), len(a), 3), Dblk).reshape(len(cols), len(cols))
             try:
                 du_a = np.linalg.solve(J, -r.ravel()[cols])
@@ -354,7 +369,14 @@ def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: Indenter
             raise SolverError(f"{case}: NaN or Inf in the contact iteration {it}")
     if float(np.abs(r).max()) > max(tol_m, rtol * scale):
         raise SolverError(f"{case}: contact Newton did not converge in {max_iterations} iterations; residual {norms[-1]:.3e} m (start {norms[0]:.3e} m)")
-    return u, law, {"iterations": it, "residuals_m": norms, "kicks": kicks}
+    return u, law, {"iterations": it, "residuals_m": norms, "kicks": kicks, "f": law.f_unknowns}
+
+
+def _group_sum(values: np.ndarray, groups: np.ndarray, n: int) -> np.ndarray:
+    """Sum of per-point values (m, ...) into their groups (n, ...)."""
+    out = np.zeros((n,) + values.shape[1:])
+    np.add.at(out, groups, values)
+    return out
 
 
 def solve_path(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case: str = "contact step", max_depth: int = 8,
@@ -393,9 +415,11 @@ def _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, ma
     kw.pop("guess", None)  # a starting guess for the whole move is not one for its halves
     mid = Pose(tuple(0.5 * (np.asarray(pose.position_m) + np.asarray(pose_old.position_m))), 0.5 * (pose.yaw_rad + pose_old.yaw_rad))
     u1, law1, i1 = solve_path(C, u0, X, shape, mid, pose_old, state, friction, k_n, k_t, case, max_depth - 1, max_penetration_m, max_jump_m, **kw)
-    u2, law2, i2 = solve_path(C, u0, X, shape, pose, mid, PointState(u1.copy(), law1.f_t.copy()), friction, k_n, k_t, case, max_depth - 1,
-                              max_penetration_m, max_jump_m, **kw)
-    return u2, law2, {"iterations": i1["iterations"] + i2["iterations"], "cuts": 1 + i1["cuts"] + i2["cuts"], "residuals_m": i2["residuals_m"]}
+    groups = kw.get("groups")
+    state1 = PointState((u1 if groups is None else u1[groups]).copy(), law1.f_t.copy())
+    u2, law2, i2 = solve_path(C, u0, X, shape, pose, mid, state1, friction, k_n, k_t, case, max_depth - 1, max_penetration_m, max_jump_m, **kw)
+    return u2, law2, {"iterations": i1["iterations"] + i2["iterations"], "cuts": 1 + i1["cuts"] + i2["cuts"], "residuals_m": i2["residuals_m"],
+                      "f": i2["f"]}
 
 
 def normal_force(law: _Law) -> float:

@@ -218,7 +218,7 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
     t0 = time.perf_counter()
     faces = condensed.contact_faces(mesh, settings.contact_band_m)
     all_points = condensed.contact_points(mesh, body.skmesh, body.d, faces)
-    points = all_points.subset(path_points(all_points, shape, load, grid, tip_z, settings.path_margin_m))
+    points = all_points.subset(path_points(all_points.X, shape, load, grid, tip_z, settings.path_margin_m))
     timings["precompute"] = time.perf_counter() - t0
     m = points.m
     k_n, k_t = eps * points.area_m2, 0.1 * eps * points.area_m2  # as the linear tiers

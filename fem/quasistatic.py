@@ -13,8 +13,11 @@ base bottom clamped, optional gravity) and the contact on condensed compliance
 - ``reduced``: the contact points are grouped into patches (a few per rod tip, a few angular
   sectors of the side band); the precompute stores the patch compliance and, per unit patch force,
   the centroid stress of every tet and the displacement of every vertex. A step is then a small
-  contact solve plus a superposition, with no sparse solve. The patch contact is coarser than the
-  vertex contact: its error against ``linear`` is what ``mlsim accuracy`` reports.
+  contact solve plus a superposition, with no sparse solve. The contact is still evaluated at
+  every point near the path, each moving with its patch (:func:`fem.condensed.solve_path` with
+  groups): a patch straddling the indenter's edge carries only the force of its touching points.
+  The patch's rigid motion and its force spread by area are the approximation: its error against
+  ``linear`` is what ``mlsim accuracy`` reports.
 
 Time: frames at the camera's rate; each frame interval is split into ``substeps`` solves (friction
 is path-dependent; an indenter sliding 200 mm/s moves 6.7 mm per 30 FPS frame). Per step the
@@ -193,11 +196,14 @@ class ReducedModel:
     weight_n: np.ndarray  # (3,) the body's weight
     lam: np.ndarray  # (T,) Pa, per tet (for the strain energy density)
     mu: np.ndarray  # (T,) Pa
+    point_X: np.ndarray  # (m, 3) the contact points (the contact is evaluated at each)
+    point_area_m2: np.ndarray  # (m,)
+    point_patch: np.ndarray  # (m,) the patch of each point
     element: str = "P2P1"
     seconds: dict = field(default_factory=dict)
 
     _ARRAYS = ("X", "area_m2", "rod", "C", "stress_response", "displacement_response", "stress_gravity", "displacement_gravity",
-               "point_u_gravity", "weight_n", "lam", "mu")
+               "point_u_gravity", "weight_n", "lam", "mu", "point_X", "point_area_m2", "point_patch")
 
     def save(self, path) -> None:
         np.savez(path, element=self.element, seconds_json=json.dumps(self.seconds), **{k: getattr(self, k) for k in self._ARRAYS})
@@ -235,7 +241,8 @@ class ReducedModel:
                 progress(min(s + block, 3 * M), 3 * M)
         xg = body.x_gravity
         return cls(X, area, rod, 0.5 * (C + C.T), stress, disp, (body.S @ xg), xg[vdofs], (Wp.T @ xg).reshape(M, 3), body.weight_n(),
-                   body.lam, body.mu, body.element, {"precompute": time.perf_counter() - t0})
+                   body.lam, body.mu, points.X.copy(), points.area_m2.copy(), np.asarray(patches).copy(), body.element,
+                   {"precompute": time.perf_counter() - t0})
 
 
 # ------------------------------------------------------------------------------------ an episode
@@ -342,8 +349,8 @@ def _pose(state: trajectory.IndenterState) -> Pose:
     return Pose(tuple(state.position_m), state.yaw_rad)
 
 
-def path_points(points: condensed.ContactPoints, shape: IndenterShape, load, grid: trajectory.TimeGrid, tip_z: float, margin_m: float) -> np.ndarray:
-    """Indices of the contact points within ``margin_m`` of the indenter anywhere on its path.
+def path_points(X: np.ndarray, shape: IndenterShape, load, grid: trajectory.TimeGrid, tip_z: float, margin_m: float) -> np.ndarray:
+    """Indices of the contact points X (m, 3) within ``margin_m`` of the indenter anywhere on its path.
 
     The indenter's height under force control is not known before the solve, so every pose is
     taken as low as the deepest displacement-controlled press or, under force control, 3 mm below
@@ -351,11 +358,11 @@ def path_points(points: condensed.ContactPoints, shape: IndenterShape, load, gri
     state = trajectory.initial_state(load, tip_z)
     depth = sum(s.depth_mm for s in load.segments if s.kind == "press" and s.depth_mm is not None) * 1e-3
     low = tip_z - max(depth - load.start_gap_mm * 1e-3, 0.0) - (3e-3 if any(s.kind == "press" and s.force_n is not None for s in load.segments) else 0.0)
-    near = np.zeros(points.m, dtype=bool)
+    near = np.zeros(len(X), dtype=bool)
     for t in grid.step_times_s:
         state = trajectory.advance(load, state, t)
         x, y, _ = state.position_m
-        gap, _ = gap_and_normal(shape, Pose((x, y, low), state.yaw_rad), points.X)
+        gap, _ = gap_and_normal(shape, Pose((x, y, low), state.yaw_rad), X)
         near |= gap < margin_m
     return np.flatnonzero(near)
 
@@ -414,21 +421,28 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     # a step may carry the indenter at most this deep into the points as they were (tunnelling guard)
     jump = min(0.5 * h, 0.25 * min(shape.size_m))
     t0 = time.perf_counter()
+    groups = None
     if settings.tier == "reduced":
-        X, area, rod, C = reduced.X, reduced.area_m2, reduced.rod, reduced.C
-        u0 = reduced.point_u_gravity
+        # contact at the patches' points near the path, elasticity per patch (fem.condensed groups)
+        keep = path_points(reduced.point_X, shape, load, grid, tip_z, settings.path_margin_m)
+        used, groups = np.unique(reduced.point_patch[keep], return_inverse=True)
+        cols = (3 * used[:, None] + np.arange(3)).ravel()
+        X, area, rod = reduced.point_X[keep], reduced.point_area_m2[keep], reduced.rod[used]
+        C = reduced.C[np.ix_(cols, cols)]
+        u0 = reduced.point_u_gravity[used]
         timings.update({f"precompute_{k}": v for k, v in reduced.seconds.items()})
         timings["precompute"] = sum(reduced.seconds.values())
     else:
         faces = condensed.contact_faces(mesh, settings.contact_band_m)
         all_points = condensed.contact_points(mesh, body.skmesh, body.d, faces)
-        keep = path_points(all_points, shape, load, grid, tip_z, settings.path_margin_m)
+        keep = path_points(all_points.X, shape, load, grid, tip_z, settings.path_margin_m)
         points = all_points.subset(keep)
         X, area, rod = points.X, points.area_m2, points.rod
         C = compliance(body, points.W)
         u0 = (points.W.T @ body.x_gravity).reshape(-1, 3)
         timings["precompute"] = time.perf_counter() - t0
-    m = len(X)
+    m = len(u0)  # unknowns: points (linear) or patches (reduced)
+    lift = (lambda v: v) if groups is None else (lambda v: v[groups])  # unknowns -> points
     k_n = eps * area
     # a softer tangential penalty (0.1 eps_n): the stick stiffness still far exceeds the body's,
     # and the frictional Newton on the default slide converges where eps_t = eps_n stalls
@@ -444,7 +458,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     iters = np.zeros(S, dtype=np.int64)
     stick = np.zeros(S)
     state = trajectory.initial_state(load, tip_z)
-    pstate = condensed.PointState(u0.copy(), np.zeros((m, 3)))
+    pstate = condensed.PointState(lift(u0).copy(), np.zeros((len(X), 3)))
+    u_now = u0.copy()
     pose_old = _pose(state)
     normal_now = 0.0
     u_last, last_move = None, None
@@ -458,10 +473,10 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             move = np.array([*pose.position_m, pose.yaw_rad]) - np.array([*pose_old.position_m, pose_old.yaw_rad])
             guess = None
             if u_last is not None and np.any(move != 0) and np.allclose(move, last_move, rtol=1e-9, atol=1e-15):
-                guess = 2.0 * pstate.u - u_last  # the same motion as the last step: extrapolate
-            u_before = pstate.u
+                guess = 2.0 * u_now - u_last  # the same motion as the last step: extrapolate
+            u_before = u_now
             u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
-                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=0.25 * h, guess=guess)
+                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=0.25 * h, guess=guess, groups=groups)
             u_last, last_move = u_before, move
             n_it = info["iterations"]
         else:
@@ -471,19 +486,20 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             def at_z(z):
                 p = Pose((state.position_m[0], state.position_m[1], z), state.yaw_rad)
                 u, law, info = condensed.solve_path(C, u0, X, shape, p, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
-                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=0.25 * h)
+                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=0.25 * h, groups=groups)
                 count[0] += info["iterations"]
-                return condensed.normal_force(law), (u, law, p)
+                return condensed.normal_force(law), (u, law, p, info)
 
-            z, (u, law, pose), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case)
+            z, (u, law, pose, info), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case)
             state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
             target[s] = state.force_target_n
             n_it = count[0]
             u_last = None
         _check_small_strain(u - u0, rod, rod_height, settings.small_strain_limit, case, settings.tier)
-        pstate = condensed.PointState(u.copy(), law.f_t.copy())
+        pstate = condensed.PointState(lift(u).copy(), law.f_t.copy())
+        u_now = u
         pose_old = pose
-        forces[s] = law.f
+        forces[s] = info["f"]
         normal_now = condensed.normal_force(law)
         pose_arr[s] = (*pose.position_m, pose.yaw_rad)
         iters[s] = n_it
@@ -495,9 +511,9 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     t0 = time.perf_counter()
     T = mesh.n_tets
     if settings.tier == "reduced":
-        Fp = forces.reshape(S, 3 * m).T.astype(np.float32)  # (3 M, S)
-        stress = (reduced.stress_response @ Fp).T.reshape(S, 6, T) + reduced.stress_gravity.reshape(6, T)
-        disp = ((reduced.displacement_response @ Fp).T + reduced.displacement_gravity).reshape(S, -1, 3)
+        Fp = forces.reshape(S, 3 * m).T.astype(np.float32)  # (3 M_used, S): only the patches near the path
+        stress = (reduced.stress_response[:, cols] @ Fp).T.reshape(S, 6, T) + reduced.stress_gravity.reshape(6, T)
+        disp = ((reduced.displacement_response[:, cols] @ Fp).T + reduced.displacement_gravity).reshape(S, -1, 3)
         total = forces.sum(axis=1)
         reaction = -(total + reduced.weight_n)
     else:

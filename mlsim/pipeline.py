@@ -165,7 +165,7 @@ def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
 
     from fem.quasistatic import build_reduced
 
-    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(_BODY_FIELDS), "version": "1"}
+    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(_BODY_FIELDS), "version": "2"}
     key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
     stage = _REDUCED_MODEL
     if ctx.cache.has(stage.name, key):
