@@ -45,6 +45,12 @@ from fem.nonlinear import SolverError
 __all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "build_reduced", "run_episode", "layer_materials"]
 
 GRAVITY_M_S2 = 9.80665
+# The contact Newton (fem.condensed._newton_points): its trust region in edge lengths, and the
+# iterations after which a step is halved instead (measured on the demo load: 50 iterations cost
+# 636 Newton iterations in all, 200 cost 1016, 30 cost 745; a step that has not converged by then
+# is usually cycling between stick and slip, which a half step resolves)
+STEP_CAP = 0.25
+CONTACT_MAX_ITERATIONS = 50
 
 
 @dataclass(frozen=True)
@@ -476,7 +482,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 guess = 2.0 * u_now - u_last  # the same motion as the last step: extrapolate
             u_before = u_now
             u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
-                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=0.25 * h, guess=guess, groups=groups)
+                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=STEP_CAP * h, guess=guess, groups=groups,
+                                                 max_iterations=CONTACT_MAX_ITERATIONS)
             u_last, last_move = u_before, move
             n_it = info["iterations"]
         else:
@@ -486,7 +493,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             def at_z(z):
                 p = Pose((state.position_m[0], state.position_m[1], z), state.yaw_rad)
                 u, law, info = condensed.solve_path(C, u0, X, shape, p, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
-                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=0.25 * h, groups=groups)
+                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=STEP_CAP * h, groups=groups,
+                                                 max_iterations=CONTACT_MAX_ITERATIONS)
                 count[0] += info["iterations"]
                 return condensed.normal_force(law), (u, law, p, info)
 
