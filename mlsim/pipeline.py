@@ -282,6 +282,39 @@ def _reduced_load(directory: Path):
     return ReducedModel.load(directory / "reduced.npz")
 
 
+def _verify_s2_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from fem.verify_s2 import run
+    from mlsim.scene import resolve_material
+
+    spec = scene.verify_s2
+    materials = {name: resolve_material(name, scene.materials) for name in {spec.slab_material, spec.block_material}}
+    return run(spec, progress=ctx.progress, log=ctx.log, materials=materials)
+
+
+def _pickle_save(result, directory: Path) -> None:
+    import pickle
+
+    (directory / "result.pkl").write_bytes(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _pickle_load(directory: Path):
+    import pickle
+
+    return pickle.loads((directory / "result.pkl").read_bytes())
+
+
+def _verify_s2_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from fem.verify_s2 import write
+
+    return write(result, out_dir)
+
+
+def _verify_s2_summary(result) -> dict:
+    from fem.verify_s2 import summary
+
+    return summary(result)
+
+
 # Not a stage of the plan (its need depends on the tier): the solve stage caches it through this.
 _REDUCED_MODEL = Stage(name="reduced_model", doc="reduced tier precompute", reads=(), needs=(), run=lambda *a: None,
                        save=_reduced_save, load=_reduced_load)
@@ -326,6 +359,17 @@ _STAGE_LIST = [
         load=_solve_load,
         write=_solve_write,
         summarize=_solve_summary,
+    ),
+    Stage(
+        name="verify_s2",
+        doc="the published FEM set-up of SPEC 1.4 (rod on a slab vs steel block on a slab); profiles CSV and plot, ratios in the summary",
+        reads=("verify_s2", "materials"),
+        needs=(),
+        run=_verify_s2_run,
+        save=_pickle_save,  # an internal cache of this code version (the stage key carries the version)
+        load=_pickle_load,
+        write=_verify_s2_write,
+        summarize=_verify_s2_summary,
     ),
 ]
 

@@ -585,6 +585,10 @@ def check_consistency(scene: Scene) -> list[Problem]:
     for i, out in enumerate(scene.outputs):
         if out not in OUTPUTS:
             problems.append(Problem(f"outputs[{i}]", out, f"unknown output; choose from: {', '.join(OUTPUTS)}"))
+        elif out == "solve" and scene.load is None:
+            problems.append(Problem(f"outputs[{i}]", out, "the solve needs a [load] section (an indenter and its segments)"))
+        elif out == "verify_s2" and scene.verify_s2 is None:
+            problems.append(Problem(f"outputs[{i}]", out, "the verification needs a [verify_s2] section (see scenes/verify_fem_s2.toml)"))
     if scene.load is not None:
         x, y = scene.load.start_xy_mm
         if abs(x) > s.size_x_mm / 2 or abs(y) > s.size_y_mm / 2:
