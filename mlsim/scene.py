@@ -310,7 +310,8 @@ class VerifyS2Spec(_Model):
     slab_material: str = "PDMS"
     block_material: str = "steel"
     edge_length_mm: Pos = 0.5
-    tiers: Annotated[tuple[Literal["linear", "nonlinear"], ...], Field(min_length=1)] = ("linear", "nonlinear")
+    # the nonlinear tier converges only at the smallest forces on the bonded sharp edges (see the scene)
+    tiers: Annotated[tuple[Literal["linear", "nonlinear"], ...], Field(min_length=1)] = ("linear",)
 
     @model_validator(mode="after")
     def _fits(self):

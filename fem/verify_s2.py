@@ -1,0 +1,991 @@
+"""The published FEM verification case of SPEC 1.4: "sliding" (rod on a slab) against "pressing"
+(steel block bonded to a slab) under the same lateral force.
+
+SPEC 1.4: two bodies, both PDMS (E 550 kPa, nu 0.49, density 970 kg/m^3), each a 10 x 10 x 2 mm
+slab with a fixed bottom; gravity on.
+
+- "sliding": a cylinder rod 8 mm tall, 4 mm diameter, stands on the slab; a lateral force acts
+  on the rod 2 mm above the slab's top surface;
+- "pressing": a steel block 2 x 2 x 4 mm is bonded on the slab; the same lateral force acts on
+  the block 2 mm above the slab's top surface.
+
+Forces 1 to 16 N. Output: the displacement along the slab's top (SPEC x from 0 to 8 mm, the rod
+between 2 and 6 mm) and the ratio of sliding to pressing displacement at each force.
+
+Modelling choices (not given by SPEC 1.4):
+
+- Coordinates: the slab spans x, y in [0, size] and z in [0, thickness]; rod and block stand at
+  the slab's centre. SPEC's profile coordinate is ``x_spec = x_slab - (centre_x - 4 mm)``: the
+  rod's centre at SPEC x = 4 mm.
+- Meshes: "pressing" is a structured tet mesh (each hexahedron of a tensor grid split into six)
+  whose grid lines contain the block's faces and the load band's edges, so the slab/block
+  interface and the loaded band are exact. "sliding" is tetrahedralised by fTetWild from the
+  union of the slab box and a 64-gon cylinder, its boundary nodes snapped onto the exact box and
+  cylinder (straight faces between them: chords of the circle).
+- Elements: Taylor-Hood P2P1 (:mod:`fem.elasticity`): PDMS at nu = 0.49 locks with P1.
+- The lateral force: a uniform traction along +x over the rod's (block's) side within a band of
+  half-width ``max(edge / 2, 0.25 mm)`` around the force height, all around the perimeter, scaled
+  so that its resultant is exactly F along +x (its moment arm about the slab's top is then the
+  band's centre height). A dead load (its direction does not follow the deformation).
+- Steel: E 200 GPa, nu 0.3 (``mlsim.materials``), elastic: a stiffness contrast of about 4e5
+  with PDMS. The linear solve is refined until its componentwise backward error is at round-off
+  (the plain relative residual cannot drop below ~1e-8 with such a contrast; see
+  :func:`_solve_accurately`).
+- Tiers: ``linear`` (small strain; the response is affine in F with gravity on, so gravity and a
+  unit force are solved once and superposed) and ``nonlinear`` (the mixed neo-Hookean solid of
+  :mod:`fem.nonlinear`, dead loads, continued from one force to the next). The Newton loop is
+  this module's own (:class:`_Newton`): :func:`fem.nonlinear.solve_nonlinear` backtracks on the
+  residual norm, which a tilting steel block defeats from the first increment. A force at which
+  Newton fails is recorded as not converged: NaN in the outputs and a message, never a silent
+  number; the larger forces are then not attempted (their load path passes through it).
+- Ratios: sliding over pressing, of the maximum and of the mean displacement magnitude along the
+  profile, per tier and force.
+
+Shapes: ``points`` (P, 3) m; ``tets`` (T, 4); DOF vectors are scikit-fem's ``[u; p / scale]``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Mapping
+
+import numpy as np
+import scipy.sparse as sp
+import skfem
+from skfem import FacetBasis, Functional, LinearForm
+
+from fem.elasticity import Discretisation, _per_qp, assemble, discretise, dof_components, skfem_mesh, split
+from fem.materials.linear_elastic import lame_parameters
+from mlsim.errors import MeshingError, MlsimError
+
+__all__ = [
+    "CASES",
+    "TIERS",
+    "GRAVITY_M_S2",
+    "SPEC_ROD_CENTRE_X_MM",
+    "Geometry",
+    "CaseMesh",
+    "CaseSystem",
+    "VerifyS2Result",
+    "grid_coordinates",
+    "pressing_mesh",
+    "sliding_mesh",
+    "element_materials",
+    "gravity_load",
+    "band_facets",
+    "lateral_band_load",
+    "fixed_bottom_dofs",
+    "build_system",
+    "solve_linear_tier",
+    "solve_nonlinear_tier",
+    "profile_points",
+    "sample_displacement",
+    "reactions",
+    "strain_magnitude",
+    "min_det_f",
+    "run",
+    "summary",
+    "write",
+]
+
+CASES = ("sliding", "pressing")
+TIERS = ("linear", "nonlinear")
+GRAVITY_M_S2 = 9.80665  # standard gravity, along -z
+#: SPEC 1.4 draws its profile from 0 to 8 mm with the rod between 2 and 6 mm: its centre at 4 mm.
+SPEC_ROD_CENTRE_X_MM = 4.0
+#: Polygon segments of the rod's input surface (fTetWild); boundary nodes are then snapped onto the circle.
+ROD_SEGMENTS = 64
+#: Load increments per force step of the nonlinear tier (halved on failure by the solver).
+NONLINEAR_INCREMENTS = 8
+#: A converged nonlinear state whose det F falls below this at a quadrature point is flagged: an
+#: element crushed near a sharp bonded edge (PDMS at nu 0.49 is nearly incompressible), so the
+#: numbers there depend on the mesh.
+MIN_DET_F_WARNING = 0.2
+#: The linear solves must reach this componentwise backward error (after iterative refinement).
+LINEAR_BACKWARD_ERROR = 1e-12
+
+# ------------------------------------------------------------------------------------ geometry
+@dataclass(frozen=True)
+class Geometry:
+    """The SPEC 1.4 set-up in metres. The slab spans x, y in [0, slab_m[:2]], z in [0, slab_m[2]];
+    rod and block stand on its top at its centre; the force acts at ``force_z_m`` (absolute)."""
+
+    slab_m: tuple[float, float, float]
+    rod_radius_m: float
+    rod_height_m: float
+    block_m: tuple[float, float, float]
+    force_z_m: float
+    band_half_width_m: float
+
+    @classmethod
+    def from_spec(cls, spec, edge_length_m: float | None = None) -> "Geometry":
+        """From a :class:`mlsim.scene.VerifyS2Spec` (mm); the band half-width follows the edge length."""
+        edge_m = spec.edge_length_mm * 1e-3 if edge_length_m is None else edge_length_m
+        slab = tuple(float(v) * 1e-3 for v in spec.slab_size_mm)
+        return cls(
+            slab_m=slab,
+            rod_radius_m=0.5e-3 * spec.rod_diameter_mm,
+            rod_height_m=1e-3 * spec.rod_height_mm,
+            block_m=tuple(float(v) * 1e-3 for v in spec.block_size_mm),
+            force_z_m=slab[2] + 1e-3 * spec.force_height_mm,
+            band_half_width_m=max(0.5 * edge_m, 0.25e-3),
+        )
+
+    @property
+    def top_m(self) -> float:
+        """z of the slab's top surface."""
+        return self.slab_m[2]
+
+    @property
+    def centre_m(self) -> tuple[float, float]:
+        """(x, y) of the slab's centre, where the rod and the block stand."""
+        return 0.5 * self.slab_m[0], 0.5 * self.slab_m[1]
+
+    def body_top_m(self, case: str) -> float:
+        """z of the rod's ("sliding") or the block's ("pressing") top."""
+        return self.top_m + (self.rod_height_m if case == "sliding" else self.block_m[2])
+
+    def band_m(self, case: str) -> tuple[float, float]:
+        """(z_low, z_high) of the loaded band, clipped to the body's side."""
+        lo = max(self.force_z_m - self.band_half_width_m, self.top_m)
+        hi = min(self.force_z_m + self.band_half_width_m, self.body_top_m(case))
+        return lo, hi
+
+    def volume_m3(self, case: str) -> float:
+        """Analytic volume of slab + rod ("sliding") or slab + block ("pressing")."""
+        slab = self.slab_m[0] * self.slab_m[1] * self.slab_m[2]
+        if case == "sliding":
+            return slab + math.pi * self.rod_radius_m**2 * self.rod_height_m
+        return slab + self.block_m[0] * self.block_m[1] * self.block_m[2]
+
+
+@dataclass(frozen=True, eq=False)
+class CaseMesh:
+    """A linear tet mesh of one case. points: (P, 3) m; tets: (T, 4) positively oriented;
+    label: (T,) 0 elastomer (slab, rod), 1 steel block; info: sizes and checks (JSON-able)."""
+
+    case: str
+    points: np.ndarray
+    tets: np.ndarray
+    label: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+def grid_coordinates(breaks_m, edge_m: float) -> np.ndarray:
+    """Sorted 1-D grid (n,) m through every break, each gap split evenly at spacing <= ``edge_m``.
+
+    breaks_m: the coordinates that must be grid lines (faces of the block, edges of the band).
+    """
+    b = np.unique(np.round(np.asarray(breaks_m, dtype=float), 12))  # merge coincident breaks (1 pm)
+    out = [b[:1]]
+    for lo, hi in zip(b[:-1], b[1:]):
+        n = max(1, math.ceil((hi - lo) / edge_m - 1e-9))
+        out.append(np.linspace(lo, hi, n + 1)[1:])
+    return np.concatenate(out)
+
+
+def _drop_unused(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    used = np.unique(tets)
+    remap = np.full(len(points), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return points[used], remap[tets]
+
+
+def pressing_mesh(geom: Geometry, edge_m: float) -> CaseMesh:
+    """Conforming tet mesh of the slab with the bonded block ("pressing", SPEC 1.4).
+
+    A tensor grid whose lines contain the slab's top, the block's faces and the load band's edges,
+    each hexahedron split into six tets (scikit-fem ``MeshTet.init_tensor``); the tets above the
+    slab and outside the block are removed. The interface and the band are therefore exact.
+    """
+    from fem.mesh import orient_tets, signed_volumes
+
+    sx, sy, t = geom.slab_m
+    bx, by, bz = geom.block_m
+    cx, cy = geom.centre_m
+    zlo, zhi = geom.band_m("pressing")
+    x = grid_coordinates([0.0, cx - bx / 2, cx + bx / 2, sx], edge_m)
+    y = grid_coordinates([0.0, cy - by / 2, cy + by / 2, sy], edge_m)
+    z = grid_coordinates([0.0, t, zlo, zhi, t + bz], edge_m)
+    full = skfem.MeshTet.init_tensor(x, y, z)
+    p, tt = full.p.T, full.t.T
+    c = p[tt].mean(axis=1)
+    in_block = (np.abs(c[:, 0] - cx) < bx / 2) & (np.abs(c[:, 1] - cy) < by / 2) & (c[:, 2] < t + bz)
+    keep = (c[:, 2] < t) | in_block
+    points, tets = _drop_unused(p, tt[keep].astype(np.int64))
+    # init_tensor's tets come in both orientations: make each positive, then validate
+    negative = signed_volumes(points, tets) < 0
+    tets[negative] = tets[negative][:, [0, 1, 3, 2]]
+    tets = orient_tets(points, tets)
+    label = (points[tets].mean(axis=1)[:, 2] > t).astype(np.int64)
+    info = {"kind": "structured (tensor grid, 6 tets per hexahedron)", "grid_cells": [len(x) - 1, len(y) - 1, len(z) - 1]}
+    return CaseMesh("pressing", points, tets, label, _mesh_info(geom, "pressing", points, tets, label, info))
+
+
+@dataclass(frozen=True)
+class _RodOnSlabSurface:
+    """The exact boundary of slab + rod, for :func:`fem.mesh._snap_boundary` (metres)."""
+
+    geom: Geometry
+
+    def project_to_surface(self, points: np.ndarray, edge_tol_m: float = 0.0) -> np.ndarray:
+        # Coordinate-wise snaps: a node within the tolerance of several pieces (an edge or a corner of
+        # the body) lands on all of them; the pieces that meet (box faces, the slab top and the rod's
+        # side at their circle) are snapped independently, so their order does not matter.
+        g, tol = self.geom, edge_tol_m
+        sx, sy, t = g.slab_m
+        cx, cy = g.centre_m
+        out = np.array(points, dtype=float)
+        for axis, planes in ((0, (0.0, sx)), (1, (0.0, sy)), (2, (0.0,))):
+            for v in planes:
+                near = np.abs(out[:, axis] - v) <= tol
+                out[near, axis] = v
+        dx, dy = out[:, 0] - cx, out[:, 1] - cy
+        r = np.hypot(dx, dy)
+        top = (np.abs(out[:, 2] - t) <= tol) & (r >= g.rod_radius_m - tol)
+        out[top, 2] = t
+        rod_top = np.abs(out[:, 2] - (t + g.rod_height_m)) <= tol
+        out[rod_top, 2] = t + g.rod_height_m
+        side = (np.abs(r - g.rod_radius_m) <= tol) & (out[:, 2] >= t - tol) & (r > 0)
+        scale = g.rod_radius_m / np.where(side, r, 1.0)
+        out[side, 0] = cx + dx[side] * scale[side]
+        out[side, 1] = cy + dy[side] * scale[side]
+        return out
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(N,) distance of points on or near the boundary to the nearest boundary piece."""
+        g = self.geom
+        sx, sy, t = g.slab_m
+        cx, cy = g.centre_m
+        x, y, z = np.asarray(points, dtype=float).T
+        r = np.hypot(x - cx, y - cy)
+        R, H = g.rod_radius_m, t + g.rod_height_m
+        d = [np.abs(x), np.abs(x - sx), np.abs(y), np.abs(y - sy), np.abs(z)]
+        d.append(np.where(r >= R, np.abs(z - t), np.hypot(np.abs(z - t), R - r)))  # the slab's top around the rod
+        d.append(np.where(r <= R, np.abs(z - H), np.hypot(np.abs(z - H), r - R)))  # the rod's top
+        d.append(np.where((z >= t) & (z <= H), np.abs(r - R), np.inf))  # the rod's side
+        return np.min(np.stack(d), axis=0)
+
+
+def _rod_on_slab_surface_mm(geom: Geometry, segments: int) -> tuple[np.ndarray, np.ndarray]:
+    """Watertight union of the slab box and a ``segments``-gon rod: vertices (V, 3) mm, faces (F, 3)."""
+    import manifold3d as m3
+
+    sx, sy, t = (v * 1e3 for v in geom.slab_m)
+    cx, cy = (v * 1e3 for v in geom.centre_m)
+    r, h = geom.rod_radius_m * 1e3, geom.rod_height_m * 1e3
+    # the rod starts inside the slab so that the union is one solid without a coplanar seam
+    rod = m3.Manifold.cylinder(h + 0.5 * t, r, r, segments).translate([cx, cy, 0.5 * t])
+    body = m3.Manifold.cube([sx, sy, t]) + rod
+    mesh = body.to_mesh()
+    return np.asarray(mesh.vert_properties, dtype=float)[:, :3], np.asarray(mesh.tri_verts, dtype=np.int32)
+
+
+def sliding_mesh(geom: Geometry, edge_m: float, segments: int = ROD_SEGMENTS, timeout_s: float = 300.0, retries: int = 3) -> CaseMesh:
+    """Unstructured tet mesh of the slab with the rod standing on it ("sliding", SPEC 1.4).
+
+    fTetWild (through :func:`fem.mesh._run_tetwild`, in a subprocess in a temporary directory) on
+    the union of the slab box and a ``segments``-gon cylinder, envelope ``edge / 40``; boundary
+    nodes are then snapped onto the exact box and cylinder (:func:`fem.mesh._snap_boundary`, which
+    keeps any node whose move would squash a tet). A failed attempt is retried with a slightly
+    perturbed edge length, as :func:`fem.mesh.build_mesh` does. Raises :class:`MeshingError`.
+    """
+    from fem.mesh import _run_tetwild, _snap_boundary, boundary_faces, orient_tets, signed_volumes
+
+    vertices_mm, faces = _rod_on_slab_surface_mm(geom, segments)
+    diag_mm = float(np.linalg.norm(vertices_mm.max(0) - vertices_mm.min(0)))
+    envelope_m = edge_m / 40.0
+    # fTetWild keeps its surface within the envelope of the polygon, itself within the sag of the circle
+    sag_m = geom.rod_radius_m * (1.0 - math.cos(math.pi / segments))
+    snap_tol_m = 2.0 * envelope_m + sag_m
+    surface = _RodOnSlabSurface(geom)
+    failures = []
+    for k in range(retries + 1):
+        edge_try_m = edge_m * (1.0 + 0.04 * math.ceil(k / 2) * (-1) ** k)
+        try:
+            pts_mm, tets = _run_tetwild(vertices_mm, faces, edge_try_m * 1e3, envelope_m * 1e3 / diag_mm, True, timeout_s)
+            points, tets = _drop_unused(np.asarray(pts_mm, dtype=float) * 1e-3, np.asarray(tets, dtype=np.int64))
+            tets = orient_tets(points, tets)
+            bfaces = boundary_faces(tets)
+            points = _snap_boundary(surface, points, tets, bfaces, snap_tol_m)
+            tets = orient_tets(points, tets)
+            volume = float(signed_volumes(points, tets).sum())
+            exact = geom.volume_m3("sliding")
+            if abs(volume / exact - 1.0) > 0.01:
+                raise MeshingError(f"mesh volume {volume * 1e9:.4g} mm^3 is {100 * (volume / exact - 1):+.2f} % off the analytic {exact * 1e9:.4g} mm^3")
+            stray_m = float(surface.distance(points[np.unique(bfaces)]).max())
+            if stray_m > 0.25 * edge_m:
+                raise MeshingError(f"a boundary node lies {stray_m * 1e3:.3g} mm from the exact surface: hole or cavity")
+        except MeshingError as exc:
+            failures.append(f"edge {edge_try_m * 1e3:.3g} mm: {exc}")
+            continue
+        label = np.zeros(len(tets), dtype=np.int64)
+        info = {
+            "kind": "fTetWild, boundary snapped onto the exact box and cylinder",
+            "rod_segments": segments,
+            "edge_length_mm": edge_try_m * 1e3,
+            "boundary_stray_mm": stray_m * 1e3,
+            "attempts": len(failures) + 1,
+        }
+        return CaseMesh("sliding", points, tets, label, _mesh_info(geom, "sliding", points, tets, label, info))
+    raise MeshingError(f"the sliding mesh (slab + rod) failed after {len(failures)} attempts ({'; '.join(failures)}); try another edge_length_mm")
+
+
+def _mesh_info(geom: Geometry, case: str, points, tets, label, extra: dict) -> dict:
+    from fem.mesh import quality_report, signed_volumes
+
+    vol = signed_volumes(points, tets)
+    q = quality_report(points, tets)
+    return {
+        **extra,
+        "points": int(len(points)),
+        "tets": int(len(tets)),
+        "volume_mm3": float(vol.sum() * 1e9),
+        "analytic_volume_mm3": float(geom.volume_m3(case) * 1e9),
+        "block_volume_mm3": float(vol[label == 1].sum() * 1e9),
+        "min_dihedral_deg": q["min_dihedral_deg"],
+    }
+
+
+# -------------------------------------------------------------------------------- loads and system
+def element_materials(label: np.ndarray, materials: Mapping[int, object]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-element (lambda Pa, mu Pa, density kg/m^3), each (T,), from labels (T,) and a material per label.
+
+    materials: {label: :class:`mlsim.materials.Material`} with young_modulus_pa, poisson_ratio and
+    density_kg_m3 known.
+    """
+    lam, mu, rho = (np.empty(len(label)) for _ in range(3))
+    for k in np.unique(label):
+        m = materials[int(k)]
+        for prop in ("young_modulus_pa", "poisson_ratio", "density_kg_m3"):
+            if getattr(m, prop).value is None:
+                raise ValueError(f"material {m.name!r} has no {prop}: give it in the scene's [materials.{m.name}]")
+        lam_k, mu_k = lame_parameters(m.young_modulus_pa.value, m.poisson_ratio.value)
+        sel = label == k
+        lam[sel], mu[sel], rho[sel] = lam_k, mu_k, m.density_kg_m3.value
+    return lam, mu, rho
+
+
+@LinearForm
+def _weight_form(v, w):
+    return -w.rho * GRAVITY_M_S2 * v[2]
+
+
+def gravity_load(d: Discretisation, rho: np.ndarray) -> np.ndarray:
+    """(n,) load vector of gravity (-z) with per-element density rho (T,) kg/m^3; zero pressure rows."""
+    f = skfem.asm(_weight_form, d.u, rho=_per_qp(rho, d.u))
+    return np.concatenate([f, np.zeros(d.n_dofs - d.n_u)])
+
+
+def band_facets(skmesh, geom: Geometry, case: str) -> np.ndarray:
+    """Boundary facets (B,) on the rod's or block's side that overlap the loaded band.
+
+    The side: boundary facets above the slab's top whose normal is within 30 degrees of horizontal
+    (the rod's chords and the block's faces are vertical; the tops are horizontal).
+    """
+    facets = skmesh.boundary_facets()
+    xyz = skmesh.p[:, skmesh.facets[:, facets]]  # (3, 3 vertices, B)
+    normal = np.cross(xyz[:, 1] - xyz[:, 0], xyz[:, 2] - xyz[:, 0], axis=0)
+    horizontal = np.abs(normal[2]) < 0.5 * np.linalg.norm(normal, axis=0)
+    zlo, zhi = geom.band_m(case)
+    zmin, zmax = xyz[2].min(axis=0), xyz[2].max(axis=0)
+    eps = 1e-9 * geom.slab_m[2]
+    above = xyz[2].mean(axis=0) > geom.top_m + eps
+    overlaps = (zmax > zlo + eps) & (zmin < zhi - eps)
+    return facets[horizontal & above & overlaps]
+
+
+def lateral_band_load(d: Discretisation, facets: np.ndarray, geom: Geometry, case: str, intorder: int = 16) -> tuple[np.ndarray, float]:
+    """Unit (1 N along +x) uniform traction over the band of the body's side: ((n,) vector, band area m^2).
+
+    The traction is 1 / A on the part of ``facets`` with z in the band (an indicator evaluated at
+    the quadrature points, exact where the band's edges are mesh lines) and A is the band's area
+    by the same quadrature, so the x components of the vector sum to exactly 1 N (P2 functions sum
+    to one) and its moment arm is the quadrature mean height of the band.
+    """
+    zlo, zhi = geom.band_m(case)
+    fb = FacetBasis(d.u.mesh, d.u.elem, facets=facets, intorder=intorder)
+
+    def inside(x):
+        return ((x[2] >= zlo) & (x[2] <= zhi)).astype(float)
+
+    area = float(Functional(lambda w: inside(w.x)).assemble(fb))
+    if not area > 0:
+        raise MlsimError(f"{case}: no side facets in the load band z = {zlo * 1e3:.3g}..{zhi * 1e3:.3g} mm: check force_height_mm")
+
+    @LinearForm
+    def unit_traction(v, w):
+        return inside(w.x) * v[0] / area
+
+    f = skfem.asm(unit_traction, fb)
+    return np.concatenate([f, np.zeros(d.n_dofs - d.n_u)]), area
+
+
+def fixed_bottom_dofs(d: Discretisation) -> np.ndarray:
+    """Displacement DOFs (m,) of the slab's bottom (z = 0): all three components fixed."""
+    bottom = d.u.mesh.facets_satisfying(lambda x: np.abs(x[2]) < 1e-12, boundaries_only=True)
+    return d.u.get_dofs(facets=bottom).all()
+
+
+@dataclass(eq=False)
+class CaseSystem:
+    """Everything one case's solves need: the P2P1 discretisation, materials per element (T,),
+    the linear operator (n, n), gravity and the unit lateral force (n,), the fixed DOFs."""
+
+    case: str
+    mesh: CaseMesh
+    d: Discretisation
+    lam: np.ndarray
+    mu: np.ndarray
+    rho: np.ndarray
+    matrix: sp.csr_matrix
+    gravity: np.ndarray
+    unit_force: np.ndarray
+    fixed: np.ndarray
+    band_area_m2: float
+
+
+def build_system(mesh: CaseMesh, geom: Geometry, materials: Mapping[int, object]) -> CaseSystem:
+    """Discretise (P2P1), assemble the linear operator and the loads of one case."""
+    sk = skfem_mesh(mesh.points, mesh.tets)
+    d = discretise(sk, "P2P1")
+    lam, mu, rho = element_materials(mesh.label, materials)
+    K = assemble(d, lam, mu)
+    unit, area = lateral_band_load(d, band_facets(sk, geom, mesh.case), geom, mesh.case)
+    return CaseSystem(mesh.case, mesh, d, lam, mu, rho, K, gravity_load(d, rho), unit, fixed_bottom_dofs(d), area)
+
+
+# ------------------------------------------------------------------------------------- solves
+def _solve_accurately(K_free: sp.csr_matrix, rhs: np.ndarray, what: str) -> tuple[np.ndarray, dict]:
+    """Solve K_free X = rhs (n, k) with a direct factorisation plus iterative refinement.
+
+    Returns (X, report). The report has, per column, the relative residual ||r|| / ||b|| and the
+    componentwise backward error max_i |r_i| / (|K| |x| + |b|)_i [Higham2002]_ (sec. 7.2). With
+    steel on PDMS (contrast 4e5) the relative residual cannot fall below ~1e-8: the steel rows
+    of K x cancel terms 4e5 times larger than the PDMS ones (the block moves almost rigidly), so
+    their rounding alone is that large; the backward error, which weighs each row by its own
+    terms, shows whether the solve is as accurate as the data allow. Raises :class:`MlsimError`
+    when the backward error stays above :data:`LINEAR_BACKWARD_ERROR` or the relative residual
+    above 1e-6.
+
+    .. [Higham2002] N. J. Higham, "Accuracy and Stability of Numerical Algorithms", 2nd ed., SIAM (2002).
+    """
+    from fem.linsolve import factorise
+
+    lu = factorise(K_free, definite=False)
+    X = lu.solve(rhs)
+    absK = abs(K_free)
+    norm = np.maximum(np.linalg.norm(rhs, axis=0), 1e-300)
+
+    def measures(X):
+        R = rhs - K_free @ X
+        scale = np.maximum(absK @ np.abs(X) + np.abs(rhs), 1e-300)
+        return R, np.linalg.norm(R, axis=0) / norm, np.max(np.abs(R) / scale, axis=0)
+
+    R, res, berr = measures(X)
+    steps = 0
+    while steps < 5 and np.any(berr > 0.01 * LINEAR_BACKWARD_ERROR):
+        X = X + lu.solve(R)
+        R, res, berr = measures(X)
+        steps += 1
+    if not np.all(np.isfinite(X)) or np.any(berr > LINEAR_BACKWARD_ERROR) or np.any(res > 1e-6):
+        raise MlsimError(
+            f"{what}: the linear solve reached a backward error of {berr.max():.2e} and a relative residual of "
+            f"{res.max():.2e} only (needed {LINEAR_BACKWARD_ERROR:g} and 1e-6)"
+        )
+    return X, {"relative_residual": res.tolist(), "backward_error": berr.tolist(), "refinement_steps": steps}
+
+
+def solve_linear_tier(s: CaseSystem, forces_n) -> tuple[np.ndarray, dict]:
+    """Small-strain states (K, n) at each force, and a report.
+
+    With gravity on, the response is affine in F: x(F) = x_gravity + F x_unit, each solved once
+    with one factorisation. The report has the residuals of the two solves (:func:`_solve_accurately`).
+    """
+    n = s.d.n_dofs
+    free = np.setdiff1d(np.arange(n), s.fixed)
+    K_free = s.matrix[free][:, free].tocsr()
+    rhs = np.stack([s.gravity[free], s.unit_force[free]], axis=1)
+    X, rep = _solve_accurately(K_free, rhs, f"{s.case} (linear)")
+    base, unit = np.zeros(n), np.zeros(n)
+    base[free], unit[free] = X[:, 0], X[:, 1]
+    states = base[None, :] + np.asarray(forces_n, dtype=float)[:, None] * unit[None, :]
+    return states, {
+        "relative_residual": dict(zip(("gravity", "unit_force"), rep["relative_residual"])),
+        "backward_error": dict(zip(("gravity", "unit_force"), rep["backward_error"])),
+        "refinement_steps": rep["refinement_steps"],
+    }
+
+
+@dataclass
+class _Newton:
+    """Newton's method on R_int(x) = f_ext for one load level: full steps, refusing inverted states.
+
+    :func:`fem.nonlinear.solve_nonlinear` backtracks on the residual norm, which fails here from
+    the first increment: the linearised step of a steel block that tilts stretches the steel by
+    ~theta^2 / 2, and the steel's 77 GPa turns that into residual forces 1e3-1e5 times the load
+    (measured at 50 mN on a 1 mm mesh: 0.009 N before the step, 373 N after it; the residual of a
+    damped step falls only as alpha^2, so no damping passes). The full step is nevertheless
+    right: with the tangent at the tilted state the next step removes the stretch and Newton
+    converges quadratically (0.18, 8e-4, 2e-4, 5e-9 N). Scaling the residual row by row does not
+    help (the load acts on the steel too), nor does the simplified-Newton monotonicity test (the
+    tangent at the untilted state turns the stretch forces into a large PDMS correction). So: full
+    steps, halved only while a trial state inverts an element (det F <= 0, as :mod:`fem.nonlinear`
+    refuses). The correction does not shrink monotonically (it alternates while the stretch is
+    corrected), so the increment fails only when it grows to 1e3 times its smallest value or
+    after ``max_iterations``; the caller then halves the load increment. Converged when the
+    displacement correction is below ``xtol`` of the displacement (then taken in full). Same
+    residual and tangent as :mod:`fem.nonlinear` (:func:`fem.nonlinear.residual_and_tangent`);
+    factorised by :func:`fem.linsolve.factorise` (PARDISO where present) with one step of
+    iterative refinement.
+    """
+
+    s: "CaseSystem"
+    xtol: float = 1e-9
+    max_iterations: int = 12
+    min_damping: float = 1.0 / 64
+
+    def __post_init__(self):
+        self.free = np.setdiff1d(np.arange(self.s.d.n_dofs), self.s.fixed)
+        self.u_rows = self.free < self.s.d.n_u  # free rows that are displacements
+
+    def _norm_u(self, v: np.ndarray) -> float:
+        return float(np.linalg.norm(v[self.u_rows]))
+
+    def solve(self, x: np.ndarray, f_ext: np.ndarray) -> tuple[bool, np.ndarray, int, str]:
+        """(converged, state, iterations, why not) from the start state x for the load f_ext (n,)."""
+        from fem.linsolve import factorise
+        from fem.nonlinear import SolverError, residual_and_tangent
+
+        s, free = self.s, self.free
+        x = x.copy()
+        try:
+            r, K = residual_and_tangent(s.d, x, s.lam, s.mu)
+        except FloatingPointError as exc:
+            return False, x, 0, f"start state: {exc}"
+        smallest = np.inf
+        for it in range(1, self.max_iterations + 1):
+            g = (r - f_ext)[free]
+            Kf = K[free][:, free]
+            try:
+                lu = factorise(Kf, definite=False)
+                dx = -lu.solve(g)
+                dx -= lu.solve(Kf @ dx + g)  # one refinement step: the steel rows cost the factor digits
+            except SolverError as exc:
+                return False, x, it, f"tangent: {exc}"
+            if not np.all(np.isfinite(dx)):
+                return False, x, it, "the Newton step is not finite"
+            ndx = self._norm_u(dx)
+            if ndx <= self.xtol * self._norm_u(x[free] + dx):  # converged: the residual is at round-off
+                x[free] += dx
+                return True, x, it, ""
+            smallest = min(smallest, ndx)
+            if ndx > 1e3 * smallest:
+                return False, x, it, f"the Newton correction diverges ({smallest:.3e} -> {ndx:.3e} m)"
+            alpha = 1.0
+            while True:
+                trial = x.copy()
+                trial[free] += alpha * dx
+                try:
+                    r, K = residual_and_tangent(s.d, trial, s.lam, s.mu)
+                    break
+                except FloatingPointError:  # an inverted element: shorten the step
+                    alpha *= 0.5
+                    if alpha < self.min_damping:
+                        return False, x, it, f"every step down to {self.min_damping:g} of Newton's inverts an element"
+            x = trial
+        return False, x, self.max_iterations, f"no convergence in {self.max_iterations} iterations (last |du| = {ndx:.3e} m)"
+
+
+def _load_path(
+    s: CaseSystem, x0: np.ndarray, external: Callable[[float], np.ndarray], increments: int, min_increment: float, case: str, max_iterations: int = 12
+) -> tuple[np.ndarray, dict]:
+    """Ramp the load factor t from 0 to 1 (external(t) -> (n,)) from the state x0; halve a failed
+    increment down to ``min_increment``, then raise :class:`fem.nonlinear.SolverError` (its
+    ``load_factor_reached`` is the last converged t). Report: increments, Newton iterations, cuts."""
+    from fem.nonlinear import SolverError
+
+    newton = _Newton(s, max_iterations=max_iterations)
+    x, t, dt = x0.copy(), 0.0, 1.0 / increments
+    report = {"increments": 0, "newton_iterations": 0, "cuts": 0}
+    while t < 1.0 - 1e-12:
+        t_next = min(1.0, t + dt)
+        ok, trial, its, why = newton.solve(x, external(t_next))
+        report["newton_iterations"] += its
+        if ok:
+            x, t = trial, t_next
+            report["increments"] += 1
+            if its <= 6:  # an easy increment: take a longer one next
+                dt = min(1.5 * dt, 4.0 / increments)
+            continue
+        report["cuts"] += 1
+        dt *= 0.5
+        if dt < min_increment:
+            exc = SolverError(f"{case}: Newton did not converge at load factor {t_next:.4g} (increment {2 * dt:.3g}): {why}")
+            exc.load_factor_reached = t
+            raise exc
+    return x, report
+
+
+def solve_nonlinear_tier(
+    s: CaseSystem, forces_n, increments: int = NONLINEAR_INCREMENTS, log: Callable[[str], None] = lambda m: None, max_iterations: int = 12
+) -> tuple[np.ndarray, list[dict]]:
+    """Finite-strain states (K, n) at each force (NaN rows where not converged), and a report per force.
+
+    Mixed neo-Hookean (:mod:`fem.nonlinear`), dead loads. The forces are visited in increasing
+    order, each solve continued from the previous state (gravity and the force ramped from zero
+    for the first), in ``increments`` load steps halved on failure (:class:`_Newton`). A force
+    whose solve fails is recorded as not converged with the solver's message, and so is every
+    larger one (its load path passes through the failure). Report per force: converged,
+    increments, Newton iterations, cuts, seconds, ``min_det_f`` (:func:`min_det_f`); if not
+    converged, the message and (for the
+    force that failed) the largest force reached, ``reached_n``. max_iterations: per Newton solve.
+    """
+    from fem.nonlinear import SolverError
+
+    forces = np.asarray(forces_n, dtype=float)
+    order = np.argsort(forces, kind="stable")
+    n = s.d.n_dofs
+    s.d.pressure_scale = float(np.max(s.mu))  # the scaling of fem.nonlinear.residual_and_tangent's unknowns
+    states = np.full((len(forces), n), np.nan)
+    reports: list[dict] = [{} for _ in forces]
+    x, f_prev, failed = np.zeros(n), 0.0, None
+    for k in order:
+        f_k = forces[k]
+        if failed is not None:
+            reports[k] = {"converged": False, "message": f"not attempted: the load path failed on the way to {failed:g} N"}
+            continue
+        if f_prev == 0.0:  # first step: gravity and force ramped together from the unloaded state
+
+            def external(t, f_k=f_k):
+                return t * (s.gravity + f_k * s.unit_force)
+
+        else:
+
+            def external(t, f_k=f_k, f_prev=f_prev):
+                return s.gravity + (f_prev + t * (f_k - f_prev)) * s.unit_force
+
+        t0 = time.perf_counter()
+        try:
+            x_new, rep = _load_path(s, x, external, increments, 1.0 / (increments * 16), f"{s.case} (nonlinear) at {f_k:g} N", max_iterations)
+        except SolverError as exc:
+            failed = f_k
+            reached = f_prev + getattr(exc, "load_factor_reached", 0.0) * (f_k - f_prev)
+            reports[k] = {"converged": False, "message": str(exc), "reached_n": reached, "seconds": time.perf_counter() - t0}
+            log(f"verify_s2: {exc}")
+            continue
+        x, f_prev = x_new, f_k
+        states[k] = x
+        reports[k] = {"converged": True, **rep, "min_det_f": min_det_f(s, x), "seconds": time.perf_counter() - t0}
+        log(f"verify_s2: {s.case} (nonlinear) at {f_k:g} N: {rep['increments']} increments, {rep['newton_iterations']} Newton iterations")
+    return states, reports
+
+
+def min_det_f(s: CaseSystem, x: np.ndarray) -> float:
+    """The smallest det F = det(I + grad u) over all quadrature points of a state x (n,)."""
+    from skfem.helpers import det
+
+    grad = np.asarray(s.d.u.interpolate(x[: s.d.n_u]).grad)  # (3, 3, T, Q)
+    return float(det(grad + np.eye(3)[:, :, None, None]).min())
+
+
+# ------------------------------------------------------------------------------------ outputs
+def profile_points(spec, geom: Geometry) -> np.ndarray:
+    """(3, N) m: the slab's top (z = thickness) at y = centre, x over ``profile_x_mm`` (slab coordinates)."""
+    x = np.linspace(*spec.profile_x_mm, spec.profile_points) * 1e-3
+    return np.stack([x, np.full_like(x, geom.centre_m[1]), np.full_like(x, geom.top_m)])
+
+
+def _nudged_inside(mesh: CaseMesh, points: np.ndarray, tol: float = 1e-8) -> np.ndarray:
+    """(3, N) the points moved by ~1e-9 of an element into the tet that contains them.
+
+    scikit-fem's element finder tolerates only machine epsilon in reference coordinates, and our
+    points lie on the slab's top (a boundary, or the rod's interface): a point found in no tet
+    would raise. Each point goes to the tet where its smallest barycentric coordinate is largest;
+    more than ``tol`` outside every tet is an error (the point is not in the body).
+    """
+    from scipy.spatial import cKDTree
+
+    P = mesh.points[mesh.tets]  # (T, 4, 3)
+    tree = cKDTree(P.mean(axis=1))
+    out = np.empty_like(points)
+    k = min(32, len(mesh.tets))
+
+    def best_of(cand, x):
+        A = np.transpose(P[cand, 1:] - P[cand, :1], (0, 2, 1))  # (C, 3, 3)
+        lam = np.linalg.solve(A, (x - P[cand, 0])[:, :, None])[:, :, 0]
+        bary = np.concatenate([1.0 - lam.sum(axis=1, keepdims=True), lam], axis=1)  # (C, 4)
+        best = int(np.argmax(bary.min(axis=1)))
+        return cand[best], bary[best]
+
+    for i, x in enumerate(points.T):
+        tet, bary = best_of(np.atleast_1d(tree.query(x, k)[1]), x)
+        if bary.min() < -tol:  # a long tet's centroid may be far from the point: search them all
+            tet, bary = best_of(np.arange(len(mesh.tets)), x)
+        if bary.min() < -tol:
+            raise MlsimError(f"profile point {x * 1e3} mm lies outside the mesh of {mesh.case}")
+        b = np.clip(bary, 0.0, None)
+        b = (1.0 - 1e-9) * b / b.sum() + 1e-9 / 4.0
+        out[:, i] = b @ P[tet]
+    return out
+
+
+def sample_displacement(s: CaseSystem, states: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Displacement (K, 3, N) m at points (3, N) for states (K, n) (NaN rows stay NaN)."""
+    probe = s.d.u.probes(_nudged_inside(s.mesh, points)).tocsr()  # (3 N, n_u), component-major rows
+    u = np.stack([probe @ np.nan_to_num(x[: s.d.n_u]) for x in states])
+    u = u.reshape(len(states), 3, points.shape[1])
+    u[~np.all(np.isfinite(states), axis=1)] = np.nan
+    return u
+
+
+def reactions(s: CaseSystem, x: np.ndarray, external: np.ndarray) -> np.ndarray:
+    """(3,) N: the resultant of the reactions at the fixed DOFs of a linear state, (K x - f) summed per component."""
+    r = (s.matrix @ x - external)[: s.d.n_u]
+    comp = dof_components(s.d.u)
+    return np.array([r[s.fixed][comp[s.fixed] == c].sum() for c in range(3)])
+
+
+def strain_magnitude(s: CaseSystem, x: np.ndarray) -> np.ndarray:
+    """(T,) the largest Frobenius norm of the small strain over each element's quadrature points."""
+    u, _ = split(s.d, x)
+    g = np.asarray(s.d.u.interpolate(u).grad)  # (3, 3, T, Q)
+    eps = 0.5 * (g + np.swapaxes(g, 0, 1))
+    return np.sqrt(np.einsum("ijtq,ijtq->tq", eps, eps)).max(axis=1)
+
+
+@dataclass(eq=False)
+class VerifyS2Result:
+    """Everything :func:`run` computed.
+
+    forces_n: (K,); x_slab_mm, x_spec_mm: (N,) profile abscissae; displacement_mm[(tier, case)]:
+    (K, 3, N) (ux, uy, uz; NaN where not converged); converged[(tier, case)]: (K,) bool;
+    mesh[case], linear[case]: reports; nonlinear[case]: a report per force; checks: derived numbers
+    (linearity, block rigidity); seconds: wall time per stage; messages: what went wrong, if anything.
+    """
+
+    spec: object
+    forces_n: np.ndarray
+    x_slab_mm: np.ndarray
+    x_spec_mm: np.ndarray
+    displacement_mm: dict = field(default_factory=dict)
+    converged: dict = field(default_factory=dict)
+    mesh: dict = field(default_factory=dict)
+    linear: dict = field(default_factory=dict)
+    nonlinear: dict = field(default_factory=dict)
+    checks: dict = field(default_factory=dict)
+    seconds: dict = field(default_factory=dict)
+    messages: list = field(default_factory=list)
+
+    @property
+    def tiers(self) -> tuple[str, ...]:
+        return tuple(t for t in TIERS if (t, CASES[0]) in self.displacement_mm)
+
+    def magnitude_mm(self, tier: str, case: str) -> np.ndarray:
+        """(K, N) displacement magnitude along the profile."""
+        return np.linalg.norm(self.displacement_mm[(tier, case)], axis=1)
+
+    def ratio(self, tier: str, stat: str = "max") -> np.ndarray:
+        """(K,) sliding over pressing of the profile's max (``stat="max"``) or mean displacement magnitude."""
+        reduce = np.max if stat == "max" else np.mean
+        a = reduce(self.magnitude_mm(tier, "sliding"), axis=1)
+        b = reduce(self.magnitude_mm(tier, "pressing"), axis=1)
+        return a / b
+
+
+def _materials_by_label(spec, materials: Mapping[str, object] | None) -> dict[int, object]:
+    from mlsim.materials import SHIPPED_MATERIALS
+
+    table = SHIPPED_MATERIALS if materials is None else materials
+    out = {}
+    for label, field_name in ((0, "slab_material"), (1, "block_material")):
+        name = getattr(spec, field_name)
+        if name not in table:
+            raise MlsimError(f"verify_s2.{field_name} = {name!r}: unknown material; choose one of: {', '.join(sorted(table))}")
+        out[label] = table[name]
+    return out
+
+
+def run(spec, progress: bool = False, log: Callable[[str], None] = print, materials: Mapping[str, object] | None = None) -> VerifyS2Result:
+    """Run the SPEC 1.4 verification case: both meshes, every tier of ``spec.tiers``, every force.
+
+    spec: :class:`mlsim.scene.VerifyS2Spec` (mm). materials: {name: Material} to resolve
+    ``slab_material`` and ``block_material`` (default: the shipped table; pass the scene's resolved
+    materials to honour its overrides). Returns a :class:`VerifyS2Result`.
+    """
+    from tqdm.auto import tqdm
+
+    t_all = time.perf_counter()
+    geom = Geometry.from_spec(spec)
+    edge_m = spec.edge_length_mm * 1e-3
+    by_label = _materials_by_label(spec, materials)
+    forces = np.asarray(spec.forces_n, dtype=float)
+    pts = profile_points(spec, geom)
+    x_slab_mm = pts[0] * 1e3
+    result = VerifyS2Result(spec, forces, x_slab_mm, x_slab_mm - (geom.centre_m[0] * 1e3 - SPEC_ROD_CENTRE_X_MM))
+    steps = len(CASES) * (2 + len(spec.tiers))
+    bar = tqdm(total=steps, desc="verify_s2", disable=None if progress else True, leave=False)
+    try:
+        for case in CASES:
+            t0 = time.perf_counter()
+            mesh = sliding_mesh(geom, edge_m) if case == "sliding" else pressing_mesh(geom, edge_m)
+            result.seconds[f"mesh_{case}"] = time.perf_counter() - t0
+            bar.update(1)
+            t0 = time.perf_counter()
+            s = build_system(mesh, geom, by_label)
+            result.seconds[f"assemble_{case}"] = time.perf_counter() - t0
+            result.mesh[case] = {**mesh.info, "dofs": int(s.d.n_dofs), "band_area_mm2": s.band_area_m2 * 1e6}
+            log(f"verify_s2: {case}: {mesh.info['tets']} tets, {s.d.n_dofs} DOFs (P2P1)")
+            bar.update(1)
+            for tier in spec.tiers:
+                t0 = time.perf_counter()
+                if tier == "linear":
+                    states, rep = solve_linear_tier(s, forces)
+                    result.linear[case] = rep
+                    ok = np.ones(len(forces), dtype=bool)
+                    if case == "pressing":
+                        strain = strain_magnitude(s, states[int(np.argmax(forces))])
+                        result.checks["pressing_block_over_slab_max_strain"] = float(strain[mesh.label == 1].max() / strain[mesh.label == 0].max())
+                else:
+                    states, reps = solve_nonlinear_tier(s, forces, log=log)
+                    result.nonlinear[case] = [{"force_n": float(f), **r} for f, r in zip(forces, reps)]
+                    ok = np.array([r["converged"] for r in reps])
+                    for f, r in zip(forces, reps):
+                        if not r["converged"]:
+                            result.messages.append(f"nonlinear {case} at {f:g} N did not converge: {r['message']}")
+                        elif r["min_det_f"] < MIN_DET_F_WARNING:
+                            result.messages.append(
+                                f"nonlinear {case} at {f:g} N converged, but det F falls to {r['min_det_f']:.2g} at a quadrature point: "
+                                "an element crushed near a sharp bonded edge, so this value depends on the mesh"
+                            )
+                result.seconds[f"{tier}_{case}"] = time.perf_counter() - t0
+                result.displacement_mm[(tier, case)] = sample_displacement(s, states, pts) * 1e3
+                result.converged[(tier, case)] = ok
+                bar.update(1)
+    finally:
+        bar.close()
+    if "linear" in spec.tiers:
+        for case in CASES:
+            per_force = result.magnitude_mm("linear", case).max(axis=1) / forces
+            result.checks[f"linear_{case}_max_u_per_force_mm_per_n"] = per_force.tolist()
+            result.checks[f"linear_{case}_max_u_per_force_relative_spread"] = float(np.ptp(per_force) / np.mean(per_force))
+    result.seconds["total"] = time.perf_counter() - t_all
+    return result
+
+
+def _per_force(forces: np.ndarray, values: np.ndarray) -> dict:
+    return {f"{f:g}": (None if not np.isfinite(v) else float(v)) for f, v in zip(forces, values)}
+
+
+def summary(result: VerifyS2Result) -> dict:
+    """JSON-able summary; the sliding/pressing ratios per tier and force under keys containing ``ratio``."""
+    ratio_max = {t: _per_force(result.forces_n, result.ratio(t, "max")) for t in result.tiers}
+    ratio_mean = {t: _per_force(result.forces_n, result.ratio(t, "mean")) for t in result.tiers}
+    max_mm = {
+        t: {c: _per_force(result.forces_n, result.magnitude_mm(t, c).max(axis=1)) for c in CASES} for t in result.tiers
+    }
+    not_converged = [
+        {"tier": t, "case": c, "force_n": float(f)}
+        for (t, c), ok in result.converged.items()
+        for f, good in zip(result.forces_n, ok)
+        if not good
+    ]
+    return {
+        "ratio_max_sliding_over_pressing": ratio_max,
+        "ratio_mean_sliding_over_pressing": ratio_mean,
+        "max_displacement_mm": max_mm,
+        "mesh": result.mesh,
+        "linear_solves": result.linear,
+        "nonlinear_solves": result.nonlinear,
+        "checks": result.checks,
+        "not_converged": not_converged,
+        "messages": list(result.messages),
+        "seconds": result.seconds,
+    }
+
+
+def _atomic(path: Path, writer: Callable[[Path], None]) -> Path:
+    tmp = path.with_name(path.name + ".part")
+    try:
+        writer(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def _profiles_csv(result: VerifyS2Result) -> str:
+    lines = ["tier,case,force_n,x_mm,x_slab_mm,ux_mm,uz_mm,u_mm"]
+    for (tier, case), u in result.displacement_mm.items():
+        mag = np.linalg.norm(u, axis=1)
+        for k, f in enumerate(result.forces_n):
+            for i in range(len(result.x_slab_mm)):
+                lines.append(
+                    f"{tier},{case},{f:g},{result.x_spec_mm[i]:.6g},{result.x_slab_mm[i]:.6g},{u[k, 0, i]:.9g},{u[k, 2, i]:.9g},{mag[k, i]:.9g}"
+                )
+    return "\n".join(lines) + "\n"
+
+
+def _ratio_csv(result: VerifyS2Result) -> str:
+    lines = ["tier,force_n,sliding_max_u_mm,pressing_max_u_mm,ratio_max,sliding_mean_u_mm,pressing_mean_u_mm,ratio_mean"]
+    for tier in result.tiers:
+        s, p = result.magnitude_mm(tier, "sliding"), result.magnitude_mm(tier, "pressing")
+        for k, f in enumerate(result.forces_n):
+            vals = [s[k].max(), p[k].max(), s[k].max() / p[k].max(), s[k].mean(), p[k].mean(), s[k].mean() / p[k].mean()]
+            lines.append(f"{tier},{f:g}," + ",".join(f"{v:.9g}" for v in vals))
+    return "\n".join(lines) + "\n"
+
+
+def _plot(result: VerifyS2Result, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tiers = result.tiers
+    fig, axes = plt.subplots(1, len(tiers) + 1, figsize=(5.0 * (len(tiers) + 1), 4.2), squeeze=False)
+    axes = axes[0]
+    rod_lo = SPEC_ROD_CENTRE_X_MM - 0.5 * result.spec.rod_diameter_mm
+    rod_hi = SPEC_ROD_CENTRE_X_MM + 0.5 * result.spec.rod_diameter_mm
+    block_half = 0.5 * result.spec.block_size_mm[0]
+    colours = plt.cm.viridis(np.linspace(0.0, 0.9, len(result.forces_n)))
+    for ax, tier in zip(axes, tiers):
+        ax.axvspan(rod_lo, rod_hi, color="0.9", label="rod")
+        ax.axvspan(SPEC_ROD_CENTRE_X_MM - block_half, SPEC_ROD_CENTRE_X_MM + block_half, fill=False, hatch="//", edgecolor="0.75", lw=0, label="block")
+        for k, f in enumerate(result.forces_n):
+            ax.plot(result.x_spec_mm, result.magnitude_mm(tier, "sliding")[k], "-", color=colours[k], label=f"{f:g} N")
+            ax.plot(result.x_spec_mm, result.magnitude_mm(tier, "pressing")[k], "--", color=colours[k])
+        ax.set_yscale("log")
+        ax.set_xlabel("x along the slab's top (mm, SPEC 1.4 coordinate)")
+        ax.set_ylabel("|u| (mm)")
+        ax.set_title(f"{tier}: sliding (solid), pressing (dashed)")
+        ax.legend(fontsize=7)
+    ax = axes[-1]
+    for tier, marker in zip(tiers, "os"):
+        ax.plot(result.forces_n, result.ratio(tier, "max"), marker + "-", label=f"{tier}, max |u|")
+        ax.plot(result.forces_n, result.ratio(tier, "mean"), marker + ":", label=f"{tier}, mean |u|")
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("lateral force (N)")
+    ax.set_ylabel("sliding / pressing displacement")
+    ax.set_title("ratio per force")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, format="png", dpi=120)
+    plt.close(fig)
+
+
+def write(result: VerifyS2Result, out_dir: str | Path) -> list[Path]:
+    """Write ``verify_s2_profiles.csv``, ``verify_s2_ratio.csv`` and ``verify_s2_profiles.png`` into
+    out_dir (each atomically: a temporary name, then renamed). Returns the paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    return [
+        _atomic(out / "verify_s2_profiles.csv", lambda p: p.write_text(_profiles_csv(result), encoding="utf-8")),
+        _atomic(out / "verify_s2_ratio.csv", lambda p: p.write_text(_ratio_csv(result), encoding="utf-8")),
+        _atomic(out / "verify_s2_profiles.png", lambda p: _plot(result, p)),
+    ]
