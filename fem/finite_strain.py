@@ -36,7 +36,7 @@ import skfem
 from skfem import ElementTetP1, ElementTetP2, ElementVector
 
 from fem import condensed, fields, trajectory
-from fem.indenters import Pose, gap_and_normal, shape_from_scene
+from fem.indenters import Pose, gap_and_normal
 from fem.nonlinear import SolverError, residual_and_tangent
 
 __all__ = ["run_nonlinear_episode", "centroid_fields"]
@@ -197,9 +197,8 @@ class _Problem:
 def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
     """Solve the scene's load on ``mesh`` with the ``nonlinear`` tier; returns a
     :class:`fem.quasistatic.Episode` (tier ``"nonlinear"``, element ``"P2P1"``)."""
-    from fem.geometry import FaceTag
     from fem.elasticity import dof_components
-    from fem.quasistatic import Episode, LinearBody, SolveSettings, _bar, _check_finite, layer_materials, path_points
+    from fem.quasistatic import ContactSetup, Episode, LinearBody, SolveSettings, _bar, _check_finite, layer_materials, path_points
 
     settings = settings or SolveSettings.from_scene(scene)
     if scene.load is None:
@@ -210,20 +209,16 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
     body.d.pressure_scale = float(np.max(body.mu))
     timings.update({f"body_{k}": v for k, v in body.seconds.items()})
     load = scene.load
-    shape = shape_from_scene(load.indenter)
-    tip_z = float(mesh.points[mesh.faces[mesh.face_tag == FaceTag.ROD_TIP]][..., 2].max())
-    grid = trajectory.time_grid(load, scene.camera.fps, settings.substeps)
-    h = scene.fidelity.mesh.edge_length_mm * 1e-3
-    eps = settings.penalty_factor * e_contact / h
+    setup = ContactSetup.from_scene(scene, mesh, settings, e_contact)
+    shape, tip_z, grid = setup.shape, setup.tip_z_m, setup.grid
     t0 = time.perf_counter()
     faces = condensed.contact_faces(mesh, settings.contact_band_m)
     all_points = condensed.contact_points(mesh, body.skmesh, body.d, faces)
     points = all_points.subset(path_points(all_points.X, shape, load, grid, tip_z, settings.path_margin_m))
     timings["precompute"] = time.perf_counter() - t0
     m = points.m
-    k_n, k_t = eps * points.area_m2, 0.1 * eps * points.area_m2  # as the linear tiers
-    problem = _Problem(body, points, shape, load.friction_coefficient, k_n, k_t, smooth_m=1e-4 * h, max_step_m=0.25 * h,
-                       max_jump_m=min(0.5 * h, 0.25 * min(shape.size_m)), max_penetration_m=0.1 * h)
+    k_n, k_t = setup.penalties(points.area_m2)
+    problem = _Problem(body, points, shape, load.friction_coefficient, k_n, k_t, **setup.solve_kw())
     n_rods = int(mesh.tet_rod.max()) + 1
     steps = grid.step_times_s
     S, T = len(steps), mesh.n_tets

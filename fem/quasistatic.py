@@ -42,7 +42,8 @@ from fem import condensed, elasticity, fields, trajectory
 from fem.indenters import IndenterShape, Pose, gap_and_normal, shape_from_scene
 from fem.nonlinear import SolverError
 
-__all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "build_reduced", "run_episode", "layer_materials"]
+__all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "ContactSetup", "tip_height_m", "build_reduced", "run_episode",
+           "layer_materials"]
 
 GRAVITY_M_S2 = 9.80665
 # The contact Newton (fem.condensed._newton_points): its trust region in edge lengths, and the
@@ -373,19 +374,56 @@ def path_points(X: np.ndarray, shape: IndenterShape, load, grid: trajectory.Time
     return np.flatnonzero(near)
 
 
+def tip_height_m(mesh) -> float:
+    """Height (m) of the rod tips: the highest vertex of the faces tagged ROD_TIP."""
+    from fem.geometry import FaceTag
+
+    return float(mesh.points[mesh.faces[mesh.face_tag == FaceTag.ROD_TIP]][..., 2].max())
+
+
+@dataclass(frozen=True)
+class ContactSetup:
+    """What every tier's contact solve derives from the scene: the indenter, the time grid, and the
+    numerical constants of :func:`fem.condensed.solve_path`, all scaled by the mesh's edge length h."""
+
+    shape: IndenterShape
+    tip_z_m: float
+    grid: trajectory.TimeGrid
+    eps_n_pa_m: float  # penalty per area: penalty_factor * E_contact / h
+    smooth_m: float  # the penalty's smoothing length (fem.condensed._contact_law): 1e-4 h
+    max_penetration_m: float  # a deeper converged point halves the step: 0.1 h
+    max_jump_m: float  # tunnelling guard: min(h / 2, a quarter of the indenter's smallest size)
+    max_step_m: float  # Newton's trust region: STEP_CAP h
+
+    @classmethod
+    def from_scene(cls, scene, mesh, settings: SolveSettings, e_contact_pa: float) -> "ContactSetup":
+        shape = shape_from_scene(scene.load.indenter)
+        h = scene.fidelity.mesh.edge_length_mm * 1e-3
+        return cls(shape, tip_height_m(mesh), trajectory.time_grid(scene.load, scene.camera.fps, settings.substeps),
+                   settings.penalty_factor * e_contact_pa / h, 1e-4 * h, 0.1 * h, min(0.5 * h, 0.25 * min(shape.size_m)), STEP_CAP * h)
+
+    def penalties(self, area_m2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normal and tangential penalty stiffnesses (N/m) of points with these areas. The tangential
+        one is 0.1 of the normal: the stick stiffness still far exceeds the body's, and the
+        frictional Newton on the default slide converges where eps_t = eps_n stalls."""
+        return self.eps_n_pa_m * area_m2, 0.1 * self.eps_n_pa_m * area_m2
+
+    def solve_kw(self) -> dict:
+        """The keyword arguments of :func:`fem.condensed.solve_path` these constants set."""
+        return {"smooth_m": self.smooth_m, "max_penetration_m": self.max_penetration_m, "max_jump_m": self.max_jump_m,
+                "max_step_m": self.max_step_m}
+
+
 def build_reduced(scene, mesh, body: LinearBody | None = None, settings: SolveSettings | None = None, progress=None) -> ReducedModel:
     """The ``reduced`` tier's precompute for a scene's sensor (independent of its load): contact
     points of the tips and side bands, grouped into patches, and their responses."""
-    from fem.geometry import FaceTag
-
     settings = settings or SolveSettings.from_scene(scene)
     t0 = time.perf_counter()
     if body is None:
         lame, rho, _ = layer_materials(scene)
         body = LinearBody(mesh, lame, rho, settings.element, settings.gravity, settings.backend)
-    tip_z = float(mesh.points[mesh.faces[mesh.face_tag == FaceTag.ROD_TIP]][..., 2].max())
     points = condensed.contact_points(mesh, body.skmesh, body.d, condensed.contact_faces(mesh, settings.contact_band_m))
-    patches = condensed.group_patches(points, settings.patches_per_tip, settings.patches_per_side, tip_z, seed=scene.seed)
+    patches = condensed.group_patches(points, settings.patches_per_tip, settings.patches_per_side, tip_height_m(mesh), seed=scene.seed)
     body_s = time.perf_counter() - t0
     model = ReducedModel.build(body, points, patches, progress=progress)
     model.seconds["body"] = body_s
@@ -398,7 +436,6 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
 
     ``body`` (and for ``reduced`` the precompute) may be passed in to reuse a factorisation.
     """
-    from fem.geometry import FaceTag
 
     settings = settings or SolveSettings.from_scene(scene)
     if scene.load is None:
@@ -418,14 +455,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     if body is not None:
         timings.update({f"body_{k}": v for k, v in body.seconds.items()})
     load = scene.load
-    shape = shape_from_scene(load.indenter)
-    tip_z = float(mesh.points[mesh.faces[mesh.face_tag == FaceTag.ROD_TIP]][..., 2].max())
-    grid = trajectory.time_grid(load, scene.camera.fps, settings.substeps)
-    h = scene.fidelity.mesh.edge_length_mm * 1e-3
-    eps = settings.penalty_factor * e_contact / h  # N/m^3
-    smooth = 1e-4 * h  # the penalty's smoothing length (fem.condensed._contact_law)
-    # a step may carry the indenter at most this deep into the points as they were (tunnelling guard)
-    jump = min(0.5 * h, 0.25 * min(shape.size_m))
+    setup = ContactSetup.from_scene(scene, mesh, settings, e_contact)
+    shape, tip_z, grid, solve_kw = setup.shape, setup.tip_z_m, setup.grid, setup.solve_kw()
     t0 = time.perf_counter()
     groups = None
     if settings.tier == "reduced":
@@ -449,10 +480,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         timings["precompute"] = time.perf_counter() - t0
     m = len(u0)  # unknowns: points (linear) or patches (reduced)
     lift = (lambda v: v) if groups is None else (lambda v: v[groups])  # unknowns -> points
-    k_n = eps * area
-    # a softer tangential penalty (0.1 eps_n): the stick stiffness still far exceeds the body's,
-    # and the frictional Newton on the default slide converges where eps_t = eps_n stalls
-    k_t = 0.1 * eps * area
+    k_n, k_t = setup.penalties(area)
     n_rods = int(mesh.tet_rod.max()) + 1
     rod_height = scene.sensor.rod.height_mm * 1e-3
 
@@ -481,9 +509,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             if u_last is not None and np.any(move != 0) and np.allclose(move, last_move, rtol=1e-9, atol=1e-15):
                 guess = 2.0 * u_now - u_last  # the same motion as the last step: extrapolate
             u_before = u_now
-            u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
-                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=STEP_CAP * h, guess=guess, groups=groups,
-                                                 max_iterations=CONTACT_MAX_ITERATIONS)
+            u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, guess=guess,
+                                                 groups=groups, max_iterations=CONTACT_MAX_ITERATIONS, **solve_kw)
             u_last, last_move = u_before, move
             n_it = info["iterations"]
         else:
@@ -492,9 +519,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
 
             def at_z(z):
                 p = Pose((state.position_m[0], state.position_m[1], z), state.yaw_rad)
-                u, law, info = condensed.solve_path(C, u0, X, shape, p, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, smooth_m=smooth,
-                                                 max_penetration_m=0.1 * h, max_jump_m=jump, max_step_m=STEP_CAP * h, groups=groups,
-                                                 max_iterations=CONTACT_MAX_ITERATIONS)
+                u, law, info = condensed.solve_path(C, u0, X, shape, p, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case,
+                                                 groups=groups, max_iterations=CONTACT_MAX_ITERATIONS, **solve_kw)
                 count[0] += info["iterations"]
                 return condensed.normal_force(law), (u, law, p, info)
 
