@@ -18,7 +18,9 @@ Shapes (SPEC 1.5 and the scene's ``load.indenter``):
 
 The distances are exact Euclidean distances to these solids (the flat punch is a cylinder of
 height h; the lying cylinder has flat end caps). They are 1-Lipschitz and their gradients, the
-normals, have unit length wherever they are defined (tested).
+normals, have unit length wherever they are defined (tested). Gradients and Hessians are analytic
+(tested against finite differences): the contact Newton needs both at every iteration, and finite
+differences cost 49 distance evaluations per point where the closed forms cost about two.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["IndenterShape", "Pose", "signed_distance_local", "gap_and_normal", "rigid_motion", "shape_from_scene"]
+__all__ = ["IndenterShape", "Pose", "signed_distance_local", "gap_and_normal", "gap_normal_hessian", "rigid_motion", "shape_from_scene"]
 
 
 @dataclass(frozen=True)
@@ -56,41 +58,109 @@ class Pose:
     yaw_rad: float = 0.0
 
 
-def _capped_cylinder_z(p, radius, height):
-    """SDF of the solid {x^2 + y^2 <= r^2, 0 <= z <= h} (axis z)."""
+def _capped_cylinder_z(p, radius, height, derivatives: bool = False):
+    """SDF of the solid {x^2 + y^2 <= r^2, 0 <= z <= h} (axis z); with ``derivatives`` also its
+    gradient (M, 3) and Hessian (M, 3, 3).
+
+    In the (rho, z) half-plane the distance is that of a 2-D box in (dr, dz) = (rho - r,
+    max(-z, z - h)); the chain rule through rho = |(x, y)| adds (dD/d dr) (I_xy - e_rho e_rho^T) / rho,
+    the curvature of the side."""
     r = np.hypot(p[:, 0], p[:, 1])
     dr = r - radius
-    dz = np.maximum(-p[:, 2], p[:, 2] - height)
-    outside = np.hypot(np.maximum(dr, 0), np.maximum(dz, 0))
+    below = -p[:, 2] > p[:, 2] - height
+    dz = np.where(below, -p[:, 2], p[:, 2] - height)
+    a, b = np.maximum(dr, 0.0), np.maximum(dz, 0.0)
+    outside = np.hypot(a, b)
     inside = np.minimum(np.maximum(dr, dz), 0.0)
-    return outside + inside
+    d = outside + inside
+    if not derivatives:
+        return d
+    m = len(p)
+    safe_r = np.maximum(r, 1e-300)
+    e_r = np.zeros((m, 3))
+    e_r[:, 0] = np.where(r > 0, p[:, 0] / safe_r, 1.0)  # on the axis any radial direction will do
+    e_r[:, 1] = np.where(r > 0, p[:, 1] / safe_r, 0.0)
+    e_z = np.zeros((m, 3))
+    e_z[:, 2] = np.where(below, -1.0, 1.0)
+    out = outside > 0
+    safe_o = np.where(out, outside, 1.0)
+    # d D / d(dr), d D / d(dz): (a, b) / |(a, b)| outside; the larger of (dr, dz) inside
+    w_r = np.where(out, a / safe_o, (dr >= dz).astype(float))
+    w_z = np.where(out, b / safe_o, (dr < dz).astype(float))
+    grad = w_r[:, None] * e_r + w_z[:, None] * e_z
+    # 2-D Hessian in (dr, dz): (diag(a > 0, b > 0) - w w^T) / |(a, b)| outside, zero inside
+    pr, pz = (a > 0).astype(float), (b > 0).astype(float)
+    h_rr = np.where(out, (pr - w_r * w_r) / safe_o, 0.0)
+    h_zz = np.where(out, (pz - w_z * w_z) / safe_o, 0.0)
+    h_rz = np.where(out, -w_r * w_z / safe_o, 0.0)
+    H = (h_rr[:, None, None] * e_r[:, :, None] * e_r[:, None, :] + h_zz[:, None, None] * e_z[:, :, None] * e_z[:, None, :]
+         + h_rz[:, None, None] * (e_r[:, :, None] * e_z[:, None, :] + e_z[:, :, None] * e_r[:, None, :]))
+    P_xy = np.zeros((m, 3, 3))
+    P_xy[:, 0, 0] = P_xy[:, 1, 1] = 1.0
+    side = w_r / np.where(r > 0, safe_r, np.inf)  # no curvature term on the axis (w_r = 0 there but for a zero-radius solid)
+    H += side[:, None, None] * (P_xy - e_r[:, :, None] * e_r[:, None, :])
+    return d, grad, H
 
 
-def _box(p, half):
+def _box(p, half, derivatives: bool = False):
+    """SDF of the box |p_i| <= half_i; with ``derivatives`` also gradient (M, 3) and Hessian (M, 3, 3):
+    outside, the distance to the nearest face, edge or corner, (D - n n^T) / d with D the diagonal
+    of the axes the point lies beyond; inside, the nearest face's (flat)."""
     q = np.abs(p) - half
-    outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+    qp = np.maximum(q, 0.0)
+    outside = np.linalg.norm(qp, axis=1)
     inside = np.minimum(q.max(axis=1), 0.0)
-    return outside + inside
+    d = outside + inside
+    if not derivatives:
+        return d
+    m = len(p)
+    sign = np.where(p < 0, -1.0, 1.0)
+    out = outside > 0
+    safe_o = np.where(out, outside, 1.0)
+    nearest = np.zeros((m, 3))
+    nearest[np.arange(m), q.argmax(axis=1)] = 1.0
+    grad = sign * np.where(out[:, None], qp / safe_o[:, None], nearest)
+    beyond = (q > 0).astype(float)
+    H = (beyond[:, :, None] * np.eye(3)[None] - grad[:, :, None] * grad[:, None, :]) / safe_o[:, None, None]
+    H[~out] = 0.0
+    return d, grad, H
 
 
-def signed_distance_local(shape: IndenterShape, p: np.ndarray) -> np.ndarray:
-    """Signed distance (M,) of points (M, 3) given in the indenter's own frame."""
+def signed_distance_local(shape: IndenterShape, p: np.ndarray, derivatives: bool = False):
+    """Signed distance (M,) of points (M, 3) given in the indenter's own frame; with ``derivatives``,
+    (distance, gradient (M, 3), Hessian (M, 3, 3)), exact (analytic) wherever they are defined."""
     p = np.asarray(p, dtype=float)
     re = shape.edge_radius_m
     if shape.kind == "flat":
         radius, height = shape.size_m
-        # rounded edges: the shrunk solid's distance minus the rounding radius (exact)
-        return _capped_cylinder_z(p - [0.0, 0.0, re], radius - re, height - 2 * re) - re
-    if shape.kind == "sphere":
+        # rounded edges: the shrunk solid's distance minus the rounding radius (exact); same derivatives
+        out = _capped_cylinder_z(p - [0.0, 0.0, re], radius - re, height - 2 * re, derivatives)
+    elif shape.kind == "sphere":
         (radius,) = shape.size_m
-        return np.linalg.norm(p - [0.0, 0.0, radius], axis=1) - radius
-    if shape.kind == "cylinder":
+        v = p - [0.0, 0.0, radius]
+        dist = np.linalg.norm(v, axis=1)
+        if not derivatives:
+            return dist - radius
+        safe = np.maximum(dist, 1e-300)
+        n = v / safe[:, None]
+        n[dist == 0] = [0.0, 0.0, 1.0]
+        return dist - radius, n, (np.eye(3)[None] - n[:, :, None] * n[:, None, :]) / safe[:, None, None]
+    elif shape.kind == "cylinder":
         radius, length = shape.size_m
-        # Axis along x at height radius: swap to a z-axis capped cylinder centred on its length.
+        # Axis along x at height radius: q = A p + b with the axis as q_z, a capped cylinder centred on its length.
         q = np.column_stack([p[:, 1], p[:, 2] - radius, p[:, 0] + length / 2])
-        return _capped_cylinder_z(q, radius, length)
-    sx, sy, sz = shape.size_m
-    return _box(p - [0.0, 0.0, sz / 2], np.array([sx, sy, sz]) / 2 - re) - re
+        out = _capped_cylinder_z(q, radius, length, derivatives)
+        if derivatives:
+            perm = [2, 0, 1]  # A^T: p_x <- q_z, p_y <- q_x, p_z <- q_y
+            d, g, H = out
+            out = (d, g[:, perm], H[:, perm][:, :, perm])
+    else:
+        sx, sy, sz = shape.size_m
+        out = _box(p - [0.0, 0.0, sz / 2], np.array([sx, sy, sz]) / 2 - re, derivatives)
+    if not derivatives:
+        return out - re
+    d, g, H = out
+    return d - re, g, H
 
 
 def _to_local(pose: Pose, X: np.ndarray) -> np.ndarray:
@@ -111,23 +181,24 @@ def rigid_motion(old: Pose, new: Pose, X: np.ndarray) -> np.ndarray:
     return _from_local(new, _to_local(old, X)) - X
 
 
-def gap_and_normal(shape: IndenterShape, pose: Pose, X: np.ndarray, h: float | None = None):
-    """Gap (M,) m and unit outward normal (3, M) of the posed indenter at points X (M, 3).
+def gap_and_normal(shape: IndenterShape, pose: Pose, X: np.ndarray):
+    """Gap (M,) m and unit outward normal (3, M) of the posed indenter at points X (M, 3): the signed
+    distance and its gradient, analytic (:func:`signed_distance_local`)."""
+    gap, n, _ = gap_normal_hessian(shape, pose, X)
+    return gap, n.T
 
-    The normal is the gradient of the signed distance, by central differences of step ``h``
-    (default 1e-4 of the indenter's smallest size): exact for the planar and spherical pieces up
-    to round-off, and within h / (radius of curvature) near edges and on curved sides.
-    """
-    X = np.asarray(X, dtype=float)
-    h = 1e-4 * min(shape.size_m) if h is None else h
-    gap = signed_distance_local(shape, _to_local(pose, X))
-    grad = np.empty((3, len(X)))
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = h
-        grad[k] = (signed_distance_local(shape, _to_local(pose, X + e)) - signed_distance_local(shape, _to_local(pose, X - e))) / (2 * h)
-    norm = np.linalg.norm(grad, axis=0)
-    return gap, grad / np.maximum(norm, 1e-300)
+
+def gap_normal_hessian(shape: IndenterShape, pose: Pose, X: np.ndarray):
+    """Gap (M,) m, unit outward normal (M, 3) and the normal's gradient dn/dX = the distance's Hessian
+    (M, 3, 3) 1/m, of the posed indenter at points X (M, 3), in the sensor frame.
+
+    The Hessian is zero on flat faces, (I - n n^T) / rho on a sphere of radius rho, and jumps where a
+    rounded edge meets a face; all exact, where finite differences straddling such a jump are right on
+    neither side."""
+    d, g, H = signed_distance_local(shape, _to_local(pose, X), derivatives=True)
+    c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # local -> sensor frame
+    return d, g @ R.T, R @ H @ R.T
 
 
 def shape_from_scene(indenter) -> IndenterShape:
