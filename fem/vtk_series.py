@@ -21,7 +21,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-__all__ = ["write_episode"]
+__all__ = ["write_episode", "write_collection"]
 
 # our Voigt order (xx, yy, zz, yz, xz, xy) -> ParaView's (xx, yy, zz, xy, yz, xz)
 _TO_PARAVIEW = (0, 1, 2, 5, 3, 4)
@@ -64,10 +64,14 @@ def write_episode(episode, directory: str | Path, stem: str = "solve") -> list[P
         mesh.write(tmp, binary=True, compression="zlib")
         os.replace(tmp, path)
         files.append(path)
-    rows = "\n".join(f'    <DataSet timestep="{t:.9g}" part="0" file={quoteattr(p.name)}/>' for t, p in zip(times, files))
-    pvd = directory / f"{stem}.pvd"
+    return [write_collection(directory / f"{stem}.pvd", times, files), *files]
+
+
+def write_collection(pvd: Path, times, files) -> Path:
+    """A ParaView ``.pvd`` collection of the files (in pvd's directory) at the given times, atomically."""
+    rows = "\n".join(f'    <DataSet timestep="{t:.9g}" part="0" file={quoteattr(Path(f).name)}/>' for t, f in zip(times, files))
     text = f'<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n{rows}\n  </Collection>\n</VTKFile>\n'
     tmp = pvd.with_name(pvd.name + ".part")
     tmp.write_text(text)
     os.replace(tmp, pvd)
-    return [pvd, *files]
+    return pvd

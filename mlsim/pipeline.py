@@ -315,6 +315,57 @@ def _verify_s2_summary(result) -> dict:
     return summary(result)
 
 
+def exposure_windows_s(n_frames: int, fps: float, exposure_s: float):
+    """(F, 2) exposure windows [k / fps, k / fps + exposure] of the camera's frames."""
+    import numpy as np
+
+    if exposure_s > 1.0 / fps * (1 + 1e-9):
+        raise ValueError(f"camera.exposure_ms = {exposure_s * 1e3:g} exceeds the {1e3 / fps:.1f} ms frame period at camera.fps = {fps:g}: "
+                         "shorten the exposure or lower the frame rate")
+    start = np.arange(n_frames) / fps
+    return np.stack([start, start + exposure_s], axis=1)
+
+
+def _emission_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from mlsim import emission
+    from mlsim.materials import phosphor_relative_brightness
+
+    geometry, (mesh, _), episode = inputs["geometry"], inputs["mesh"], inputs["solve"]
+    spec = scene.emission
+    patches = emission.ml_patches(geometry, mesh, scene.fidelity.mesh.segments_per_circle)
+    model = emission.emission_model(spec.model)
+    fields = {"detrapping": dict(detrapping_per_pa=spec.detrapping_per_pa, recovery_time_s=spec.recovery_time_s),
+              "stress_rate": dict(detrapping_per_pa=spec.detrapping_per_pa)}[spec.model]
+    scale = float(scene.material("ml_layer").relative_ml_peak.value) * float(phosphor_relative_brightness(scene.sensor.phosphor.loading_wt_pct))
+    windows = exposure_windows_s(episode.n_frames, scene.camera.fps, scene.camera.exposure_ms * 1e-3)
+    return emission.photon_rates(episode.t_s, episode.stress, windows, patches, spec.model, model.params(**fields), spec.equivalent_stress,
+                                 spec.brightness_photons_per_m2, scale)
+
+
+def _emission_save(result, directory: Path) -> None:
+    from mlsim.emission import output
+
+    output.save(result, directory / "emission.npz")
+
+
+def _emission_load(directory: Path):
+    from mlsim.emission import output
+
+    return output.load(directory / "emission.npz")
+
+
+def _emission_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from mlsim.emission import output
+
+    return output.write(result, out_dir)
+
+
+def _emission_summary(result) -> dict:
+    from mlsim.emission import output
+
+    return output.summary(result)
+
+
 # Not a stage of the plan (its need depends on the tier): the solve stage caches it through this.
 _REDUCED_MODEL = Stage(name="reduced_model", doc="reduced tier precompute", reads=(), needs=(), run=lambda *a: None,
                        save=_reduced_save, load=_reduced_load)
@@ -359,6 +410,17 @@ _STAGE_LIST = [
         load=_solve_load,
         write=_solve_write,
         summarize=_solve_summary,
+    ),
+    Stage(
+        name="emission",
+        doc="ZnS:Cu photons per second from each patch of the ML layer's inner face, per camera exposure; writes a VTU series, CSV and plot",
+        reads=_BODY_FIELDS + ("sensor", "emission", "camera.fps", "camera.exposure_ms", "fidelity.mesh.segments_per_circle"),
+        needs=("geometry", "mesh", "solve"),
+        run=_emission_run,
+        save=_emission_save,
+        load=_emission_load,
+        write=_emission_write,
+        summarize=_emission_summary,
     ),
     Stage(
         name="verify_s2",

@@ -323,6 +323,21 @@ class VerifyS2Spec(_Model):
         return self
 
 
+# ------------------------------------------------------------------------------------- emission
+class EmissionSpec(_Model):
+    """ML emission from the stress history (:mod:`mlsim.emission`). The trap constants are not given
+    in SPEC; their defaults and the reasons are in :mod:`mlsim.emission.detrapping`."""
+
+    model: Literal["detrapping", "stress_rate"] = "detrapping"
+    equivalent_stress: Literal["von_mises", "tresca", "max_principal", "abs_pressure"] = "von_mises"  # SPEC 1.3: von Mises contours
+    detrapping_per_pa: NonNeg = 2e-7  # fraction of filled traps a 1 Pa rise empties
+    recovery_time_s: Pos = 1.0  # self-recovering ZnS:Cu refills its traps with this time constant
+    # photons per m^2 of ML layer when all its traps empty, before the host and loading factors.
+    # Provisional order of magnitude (trap density 1e23 m^-3 x phosphor volume fraction 0.29 at
+    # 60 wt% x 0.5 mm x radiative yield 0.7 = 1e19) until the render stage's calibration sets it.
+    brightness_photons_per_m2: NonNeg = 1e19
+
+
 # ------------------------------------------------------------------------------ optics and camera
 ABSORBERS = ("black_silicone_pigment", "uv_opaque_colorant", "carbon_nanotubes", "water_based_ink", "none")
 
@@ -427,6 +442,7 @@ class Scene(_Model):
     sensor: SensorSpec = SensorSpec()
     materials: dict[str, MaterialOverride] = {}
     load: LoadSpec | None = None
+    emission: EmissionSpec = EmissionSpec()
     optics: OpticsSpec = OpticsSpec()
     camera: CameraSpec = CameraSpec()
     ambient: AmbientSpec = AmbientSpec()
@@ -586,8 +602,8 @@ def check_consistency(scene: Scene) -> list[Problem]:
     for i, out in enumerate(scene.outputs):
         if out not in OUTPUTS:
             problems.append(Problem(f"outputs[{i}]", out, f"unknown output; choose from: {', '.join(OUTPUTS)}"))
-        elif out == "solve" and scene.load is None:
-            problems.append(Problem(f"outputs[{i}]", out, "the solve needs a [load] section (an indenter and its segments)"))
+        elif out in ("solve", "emission") and scene.load is None:
+            problems.append(Problem(f"outputs[{i}]", out, f"the {out} stage needs a [load] section (an indenter and its segments)"))
         elif out == "verify_s2" and scene.verify_s2 is None:
             problems.append(Problem(f"outputs[{i}]", out, "the verification needs a [verify_s2] section (see scenes/verify_fem_s2.toml)"))
     if scene.load is not None:

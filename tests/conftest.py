@@ -16,6 +16,17 @@ def pytest_configure(config):
         import tempfile
 
         os.environ["MLSIM_CACHE_DIR"] = tempfile.mkdtemp(prefix="mlsim_test_cache_")
+        config._mlsim_made_cache = os.environ["MLSIM_CACHE_DIR"]
+
+
+def pytest_unconfigure(config):
+    # the session's private cache goes with the session (they piled up in /tmp: ~0.5 GB each)
+    made = getattr(config, "_mlsim_made_cache", None)
+    if made:
+        import shutil
+
+        shutil.rmtree(made, ignore_errors=True)
+        os.environ.pop("MLSIM_CACHE_DIR", None)
 
 
 @pytest.fixture(scope="session")
