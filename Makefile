@@ -25,6 +25,7 @@ test-slow: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/bench_mesh.py
 	$(PY) benchmarks/bench_tiers.py
+	$(PY) benchmarks/bench_camera.py
 
 venv: $(STAMP)
 

@@ -315,19 +315,9 @@ def _verify_s2_summary(result) -> dict:
     return summary(result)
 
 
-def exposure_windows_s(n_frames: int, fps: float, exposure_s: float):
-    """(F, 2) exposure windows [k / fps, k / fps + exposure] of the camera's frames."""
-    import numpy as np
-
-    if exposure_s > 1.0 / fps * (1 + 1e-9):
-        raise ValueError(f"camera.exposure_ms = {exposure_s * 1e3:g} exceeds the {1e3 / fps:.1f} ms frame period at camera.fps = {fps:g}: "
-                         "shorten the exposure or lower the frame rate")
-    start = np.arange(n_frames) / fps
-    return np.stack([start, start + exposure_s], axis=1)
-
-
 def _emission_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from mlsim import emission
+    from mlsim.camera import exposure_windows_s
     from mlsim.materials import phosphor_relative_brightness
 
     geometry, (mesh, _), episode = inputs["geometry"], inputs["mesh"], inputs["solve"]
