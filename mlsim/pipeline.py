@@ -236,7 +236,8 @@ def _plot_solve(ep, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import matplotlib.ticker
-    import numpy as np
+
+    from mlsim.plots import rod_map, save_png
 
     k = ep.frame_step
     t = ep.t_s[k] * 1e3
@@ -251,21 +252,8 @@ def _plot_solve(ep, path: Path) -> Path:
     fig.colorbar(im, ax=ax[1], label="normal force (N)")
     ax[1].set(xlabel="time (ms)", ylabel="rod", title="normal force per rod")
     ax[1].yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
-    peaks = ep.rod_peaks()
-    n = len(peaks["von_mises_kpa"])
-    side = int(round(np.sqrt(n)))
-    if side * side == n:  # a square array: rod r at row r // side, column r % side
-        im = ax[2].imshow(np.reshape(peaks["ml_von_mises_kpa"], (side, side)), origin="lower", cmap="magma")
-        fig.colorbar(im, ax=ax[2], label="peak von Mises in the ML layer (kPa)")
-        ax[2].set(title="per-rod peak ML-layer stress", xlabel="column", ylabel="row", xticks=range(side), yticks=range(side))
-    else:
-        ax[2].bar(np.arange(n), peaks["ml_von_mises_kpa"])
-        ax[2].set(xlabel="rod", ylabel="peak von Mises in the ML layer (kPa)")
-    tmp = path.with_name(f".{path.stem}.part.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    rod_map(fig, ax[2], ep.rod_peaks()["ml_von_mises_kpa"], "peak von Mises in the ML layer (kPa)", "per-rod peak ML-layer stress", "magma")
+    return save_png(fig, path)
 
 
 def _solve_summary(episode) -> dict:

@@ -754,15 +754,21 @@ def channel_factors(
         (3,) electrons per photon for R, G, B. Multiply a photon rate [1/s] reaching the pixel's
         footprint (geometry from the renderer) to get electrons/s.
     """
-    wl = wavelengths_nm(shape)
-    s = _values_on_grid(emission_sd, shape, "emission_sd")
-    if np.any(s < 0.0):
-        raise ValueError("emission_sd has negative values; a photon spectral density is >= 0")
-    total = trapezoid(s, wl)
-    if not total > 0.0:
-        raise ValueError(f"emission_sd integrates to {total} on the grid {wl[0]:g}-{wl[-1]:g} nm; it must be > 0 there")
-    weight = s / total * _path_transmittance(transmittance_sds, shape)
+    wl, s = _unit_integral(emission_sd, shape, "emission_sd", "a photon spectral density")
+    weight = s * _path_transmittance(transmittance_sds, shape)
     return trapezoid(weight[:, None] * _camera_values(camera_msds, shape), wl, axis=0)
+
+
+def _unit_integral(sd, shape, name: str, what: str):
+    """(grid (K,) nm, values of ``sd`` on it scaled to a trapezoid integral of 1); non-negative, > 0."""
+    wl = wavelengths_nm(shape)
+    v = _values_on_grid(sd, shape, name)
+    if np.any(v < 0.0):
+        raise ValueError(f"{name} has negative values; {what} is >= 0")
+    total = trapezoid(v, wl)
+    if not total > 0.0:
+        raise ValueError(f"{name} integrates to {total} on the grid {wl[0]:g}-{wl[-1]:g} nm; it must be > 0 there")
+    return wl, v / total
 
 
 def channel_factors_power(
@@ -788,14 +794,8 @@ def channel_factors_power(
         (3,) electrons per joule for R, G, B: multiply by the radiant power [W] reaching the
         pixel's footprint to get electrons/s.
     """
-    wl = wavelengths_nm(shape)
-    p = _values_on_grid(power_sd, shape, "power_sd")
-    if np.any(p < 0.0):
-        raise ValueError("power_sd has negative values; a spectral power density is >= 0")
-    total = trapezoid(p, wl)
-    if not total > 0.0:
-        raise ValueError(f"power_sd integrates to {total} on the grid {wl[0]:g}-{wl[-1]:g} nm; it must be > 0 there")
-    photons_per_joule = p / total * (wl * 1e-9) / (constants.h * constants.c)  # photons / J / nm
+    wl, p = _unit_integral(power_sd, shape, "power_sd", "a spectral power density")
+    photons_per_joule = p * (wl * 1e-9) / (constants.h * constants.c)  # photons / J / nm
     weight = photons_per_joule * _path_transmittance(transmittance_sds, shape)
     return trapezoid(weight[:, None] * _camera_values(camera_msds, shape), wl, axis=0)
 

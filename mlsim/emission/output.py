@@ -71,6 +71,8 @@ def plot(result: EmissionResult, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from mlsim.plots import rod_map, save_png
+
     n = _n_rods(result)
     per_rod = result.per_rod(n)
     t = result.windows_s[:, 0] * 1e3
@@ -84,18 +86,8 @@ def plot(result: EmissionResult, path: Path) -> Path:
     ax[1].set(xlabel="exposure start (ms)", ylabel="rod", title="per rod")
     length = result.windows_s[:, 1] - result.windows_s[:, 0]
     total = (per_rod[:, :-1] * length[:, None]).sum(axis=0)
-    side = int(round(np.sqrt(n)))
-    if side * side == n:
-        im = ax[2].imshow(total.reshape(side, side), origin="lower", cmap="Greens")
-        fig.colorbar(im, ax=ax[2], label="photons in the episode")
-        ax[2].set(title="per-rod photons (rod r at row r // cols)", xticks=range(side), yticks=range(side))
-    else:
-        ax[2].bar(np.arange(n), total)
-        ax[2].set(xlabel="rod", ylabel="photons in the episode")
-    tmp = path.with_name(f".{path.stem}.part.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    rod_map(fig, ax[2], total, "photons in the episode", "per-rod photons in the episode", "Greens")
+    save_png(fig, path)
     return path
 
 
