@@ -46,7 +46,8 @@ import scipy.sparse as sp
 import skfem
 from skfem import BilinearForm, ElementTetP1, ElementTetP2, ElementVector, LinearForm
 
-from fem.indenters import IndenterShape, Pose, gap_and_normal, gap_normal_hessian, rigid_motion
+from fem.indenters import IndenterShape, Pose, gap_normal_hessian, rigid_motion
+from fem.indenters import gap as indenter_gap
 from fem.nonlinear import SolverError
 
 __all__ = ["ContactPoints", "PointState", "contact_faces", "contact_points", "solve_points", "solve_path", "solve_points_at_force", "group_patches"]
@@ -387,7 +388,7 @@ def solve_path(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case:
 
     Returns (u, law, info) with the total iterations and the number of cuts in info."""
     if max_jump_m is not None and max_depth > 0:
-        gap_before, _ = gap_and_normal(shape, pose, X + state.u)
+        gap_before = indenter_gap(shape, pose, X + state.u)
         if -float(gap_before.min()) > max_jump_m:
             return _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, max_depth, max_penetration_m, max_jump_m, **kw)
     try:

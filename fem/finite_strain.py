@@ -36,7 +36,8 @@ import skfem
 from skfem import ElementTetP1, ElementTetP2, ElementVector
 
 from fem import condensed, fields, trajectory
-from fem.indenters import Pose, gap_and_normal
+from fem.indenters import Pose
+from fem.indenters import gap as indenter_gap
 from fem.nonlinear import SolverError, residual_and_tangent
 
 __all__ = ["run_nonlinear_episode", "centroid_fields"]
@@ -175,7 +176,7 @@ class _Problem:
     def path(self, x0, pose, pose_old, state, case, depth=8):
         """:meth:`newton` from ``pose_old`` to ``pose``, halving the move on failure or tunnelling."""
         if depth > 0:
-            gap_before, _ = gap_and_normal(self.shape, pose, self.points.X + state.u)
+            gap_before = indenter_gap(self.shape, pose, self.points.X + state.u)
             jump = -float(gap_before.min()) > self.max_jump_m
         else:
             jump = False

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["IndenterShape", "Pose", "signed_distance_local", "gap_and_normal", "gap_normal_hessian", "rigid_motion", "shape_from_scene"]
+__all__ = ["IndenterShape", "Pose", "signed_distance_local", "gap", "gap_and_normal", "gap_normal_hessian", "rigid_motion", "shape_from_scene"]
 
 
 @dataclass(frozen=True)
@@ -179,6 +179,12 @@ def rigid_motion(old: Pose, new: Pose, X: np.ndarray) -> np.ndarray:
     (what a point of the body sticking to the indenter is dragged by)."""
     X = np.asarray(X, dtype=float)
     return _from_local(new, _to_local(old, X)) - X
+
+
+def gap(shape: IndenterShape, pose: Pose, X: np.ndarray) -> np.ndarray:
+    """Gap (M,) m of the posed indenter at points X (M, 3): the signed distance alone (no derivatives,
+    for the per-step tunnelling guard and the path screening)."""
+    return signed_distance_local(shape, _to_local(pose, np.asarray(X, dtype=float)))
 
 
 def gap_and_normal(shape: IndenterShape, pose: Pose, X: np.ndarray):

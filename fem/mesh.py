@@ -61,6 +61,7 @@ __all__ = [
     "MeshableBody",
     "build_mesh",
     "signed_volumes",
+    "locate_points",
     "boundary_faces",
     "edge_table",
     "dihedral_angles_deg",
@@ -212,6 +213,39 @@ _ARRAYS = ("points", "tets", "edge_nodes", "tet_edges", "layer_fraction", "tet_r
 
 
 # ----------------------------------------------------------------------------------- measures
+def locate_points(points: np.ndarray, tets: np.ndarray, X: np.ndarray, k: int = 24, exhaustive_below: float | None = None):
+    """The tet (points (P, 3), tets (T, 4)) holding each of X (M, 3), and X's barycentric coordinates in it.
+
+    Candidates are the k tets with the nearest centroids; the holder is the one whose smallest
+    barycentric coordinate is largest (exactly the containing tet when there is one; the nearest by
+    that measure for a point just outside a curved boundary the straight tets cut). With
+    ``exhaustive_below``, points whose best coordinate is below -exhaustive_below among the k (a long
+    tet's centroid can be far from a point inside it) are tried against every tet.
+    Returns tet (M,) and bary (M, 4).
+    """
+    from scipy.spatial import cKDTree
+
+    V = points[tets]  # (T, 4, 3)
+    X = np.atleast_2d(np.asarray(X, dtype=float))
+
+    def best_of(cand, x):  # cand (M, C) tets for points x (M, 3)
+        A = V[cand]
+        E = np.stack([A[:, :, 1] - A[:, :, 0], A[:, :, 2] - A[:, :, 0], A[:, :, 3] - A[:, :, 0]], axis=-1)
+        b = np.linalg.solve(E, (x[:, None, :] - A[:, :, 0])[..., None])[..., 0]
+        bary = np.concatenate([1.0 - b.sum(axis=-1, keepdims=True), b], axis=-1)
+        best = np.argmax(bary.min(axis=-1), axis=1)
+        rows = np.arange(len(x))
+        return cand[rows, best], bary[rows, best]
+
+    _, cand = cKDTree(V.mean(axis=1)).query(X, k=min(k, len(tets)))
+    tet, bary = best_of(np.asarray(cand).reshape(len(X), -1), X)
+    if exhaustive_below is not None:
+        for i in np.flatnonzero(bary.min(axis=1) < -exhaustive_below):
+            t, b = best_of(np.arange(len(tets))[None], X[i : i + 1])
+            tet[i], bary[i] = t[0], b[0]
+    return tet, bary
+
+
 def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """(T,) signed volumes of straight tets (positive when (v1-v0, v2-v0, v3-v0) is right-handed)."""
     p = points[tets]

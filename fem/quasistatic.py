@@ -39,7 +39,8 @@ import skfem
 from skfem import LinearForm
 
 from fem import condensed, elasticity, fields, trajectory
-from fem.indenters import IndenterShape, Pose, gap_and_normal, shape_from_scene
+from fem.indenters import IndenterShape, Pose, shape_from_scene
+from fem.indenters import gap as indenter_gap
 from fem.nonlinear import SolverError
 
 __all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "ContactSetup", "tip_height_m", "build_reduced", "run_episode",
@@ -369,8 +370,7 @@ def path_points(X: np.ndarray, shape: IndenterShape, load, grid: trajectory.Time
     for t in grid.step_times_s:
         state = trajectory.advance(load, state, t)
         x, y, _ = state.position_m
-        gap, _ = gap_and_normal(shape, Pose((x, y, low), state.yaw_rad), X)
-        near |= gap < margin_m
+        near |= indenter_gap(shape, Pose((x, y, low), state.yaw_rad), X) < margin_m
     return np.flatnonzero(near)
 
 

@@ -708,30 +708,15 @@ def _nudged_inside(mesh: CaseMesh, points: np.ndarray, tol: float = 1e-8) -> np.
     would raise. Each point goes to the tet where its smallest barycentric coordinate is largest;
     more than ``tol`` outside every tet is an error (the point is not in the body).
     """
-    from scipy.spatial import cKDTree
+    from fem.mesh import locate_points
 
-    P = mesh.points[mesh.tets]  # (T, 4, 3)
-    tree = cKDTree(P.mean(axis=1))
-    out = np.empty_like(points)
-    k = min(32, len(mesh.tets))
-
-    def best_of(cand, x):
-        A = np.transpose(P[cand, 1:] - P[cand, :1], (0, 2, 1))  # (C, 3, 3)
-        lam = np.linalg.solve(A, (x - P[cand, 0])[:, :, None])[:, :, 0]
-        bary = np.concatenate([1.0 - lam.sum(axis=1, keepdims=True), lam], axis=1)  # (C, 4)
-        best = int(np.argmax(bary.min(axis=1)))
-        return cand[best], bary[best]
-
-    for i, x in enumerate(points.T):
-        tet, bary = best_of(np.atleast_1d(tree.query(x, k)[1]), x)
-        if bary.min() < -tol:  # a long tet's centroid may be far from the point: search them all
-            tet, bary = best_of(np.arange(len(mesh.tets)), x)
-        if bary.min() < -tol:
-            raise MlsimError(f"profile point {x * 1e3} mm lies outside the mesh of {mesh.case}")
-        b = np.clip(bary, 0.0, None)
-        b = (1.0 - 1e-9) * b / b.sum() + 1e-9 / 4.0
-        out[:, i] = b @ P[tet]
-    return out
+    tet, bary = locate_points(mesh.points, mesh.tets, points.T, k=32, exhaustive_below=tol)
+    bad = bary.min(axis=1) < -tol
+    if bad.any():
+        raise MlsimError(f"profile point {points.T[np.argmax(bad)] * 1e3} mm lies outside the mesh of {mesh.case}")
+    b = np.clip(bary, 0.0, None)
+    b = (1.0 - 1e-9) * b / b.sum(axis=1, keepdims=True) + 1e-9 / 4.0
+    return np.einsum("nk,nkd->dn", b, mesh.points[mesh.tets[tet]])
 
 
 def sample_displacement(s: CaseSystem, states: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -27,7 +27,7 @@ from typing import Any, Callable
 
 from mlsim.scene import Scene
 
-__all__ = ["Stage", "STAGES", "OUTPUTS", "PlanStep", "Cache", "plan", "run", "stage_key", "default_cache_dir", "invalidated"]
+__all__ = ["Stage", "STAGES", "OUTPUTS", "PlanStep", "Cache", "plan", "run", "stage_key", "default_cache_dir", "invalidated", "atomic_bytes"]
 
 # Scene fields that shape the rod array's geometry (shared by geometry and mesh).
 _GEOMETRY_FIELDS = (
@@ -82,7 +82,7 @@ def _geometry_write(g, out_dir: Path, ctx: "RunContext") -> list[Path]:
     files = []
     for name, mesh in surfaces.items():
         path = out_dir / name
-        _atomic_bytes(path, mesh.export(file_type="ply"))
+        atomic_bytes(path, mesh.export(file_type="ply"))
         files.append(path)
     return files
 
@@ -123,7 +123,7 @@ def _mesh_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
     vtu = out_dir / "mesh.vtu"
     write_vtu(mesh, vtu)
     rep = out_dir / "mesh_report.json"
-    _atomic_bytes(rep, json.dumps(report, indent=2).encode())
+    atomic_bytes(rep, json.dumps(report, indent=2).encode())
     return [vtu, rep]
 
 
@@ -225,7 +225,7 @@ def _write_solve_csv(ep, path: Path) -> Path:
     buf = io.StringIO()
     buf.write(",".join(cols) + "\n")
     np.savetxt(buf, np.column_stack(list(cols.values())), delimiter=",", fmt="%.9g")
-    _atomic_bytes(path, buf.getvalue().encode())
+    atomic_bytes(path, buf.getvalue().encode())
     return path
 
 
@@ -311,12 +311,10 @@ def _emission_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     geometry, (mesh, _), episode = inputs["geometry"], inputs["mesh"], inputs["solve"]
     spec = scene.emission
     patches = emission.ml_patches(geometry, mesh, scene.fidelity.mesh.segments_per_circle)
-    model = emission.emission_model(spec.model)
-    fields = {"detrapping": dict(detrapping_per_pa=spec.detrapping_per_pa, recovery_time_s=spec.recovery_time_s),
-              "stress_rate": dict(detrapping_per_pa=spec.detrapping_per_pa)}[spec.model]
+    params = emission.emission_model(spec.model).params_from(spec)
     scale = float(scene.material("ml_layer").relative_ml_peak.value) * float(phosphor_relative_brightness(scene.sensor.phosphor.loading_wt_pct))
     windows = exposure_windows_s(episode.n_frames, scene.camera.fps, scene.camera.exposure_ms * 1e-3)
-    return emission.photon_rates(episode.t_s, episode.stress, windows, patches, spec.model, model.params(**fields), spec.equivalent_stress,
+    return emission.photon_rates(episode.t_s, episode.stress, windows, patches, spec.model, params, spec.equivalent_stress,
                                  spec.brightness_photons_per_m2, scale)
 
 
@@ -567,7 +565,7 @@ def run(scene: Scene, out_dir: str | Path | None = None, cache: Cache | None = N
     result.summary = _summary(scene, steps, results, seconds, files, scene_path)
     if out is not None:
         path = out / "summary.json"
-        _atomic_bytes(path, json.dumps(result.summary, indent=2, default=str).encode())
+        atomic_bytes(path, json.dumps(result.summary, indent=2, default=str).encode())
         files["summary"] = [path]
     return result
 
@@ -605,7 +603,9 @@ def _versions() -> dict:
     return out
 
 
-def _atomic_bytes(path: Path, data: bytes) -> None:
+def atomic_bytes(path: Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` under a temporary name and rename: never a half-written file."""
     tmp = path.with_name(f".{path.name}.part")
     tmp.write_bytes(data)
     os.replace(tmp, path)
+    return path

@@ -23,9 +23,9 @@ import numpy as np
 
 from mlsim.emission import detrapping, stress_rate
 from mlsim.emission.equivalent_stress import EQUIVALENT_STRESSES, equivalent_stress
-from mlsim.emission.patches import MLPatches, locate_points, ml_patches
+from mlsim.emission.patches import MLPatches, ml_patches
 
-__all__ = ["EMISSION_MODELS", "emission_model", "EQUIVALENT_STRESSES", "equivalent_stress", "MLPatches", "ml_patches", "locate_points",
+__all__ = ["EMISSION_MODELS", "emission_model", "EQUIVALENT_STRESSES", "equivalent_stress", "MLPatches", "ml_patches",
            "photon_rates", "EmissionResult"]
 
 
@@ -33,7 +33,13 @@ __all__ = ["EMISSION_MODELS", "emission_model", "EQUIVALENT_STRESSES", "equivale
 class _Model:
     name: str
     params: type
-    fraction: object  # (t_s, sigma_eq (S, N), windows (F, 2), params) -> ((F, N), state)
+    fraction: object  # (t_s, sigma_eq (S, N), windows (F, 2), params, n0) -> ((F, N), state)
+
+    def params_from(self, spec):
+        """The model's parameters from a scene's ``emission`` section (the fields both carry)."""
+        from dataclasses import fields
+
+        return self.params(**{f.name: getattr(spec, f.name) for f in fields(self.params)})
 
 
 EMISSION_MODELS = {
@@ -86,7 +92,7 @@ def photon_rates(t_s, stress_voigt_pa, windows_s, patches: MLPatches, model: str
     sigma_eq = equivalent_stress(measure)(np.moveaxis(stress[:, :, patches.tet], 1, 2))  # (S, N)
     if not (np.isfinite(brightness_photons_per_m2) and brightness_photons_per_m2 >= 0 and np.isfinite(scale) and scale >= 0):
         raise ValueError(f"brightness_photons_per_m2 = {brightness_photons_per_m2}, scale = {scale}: must be finite and >= 0")
-    fraction, state = m.fraction(t_s, sigma_eq, windows_s, params, *([n0] if model == "detrapping" else []))
+    fraction, state = m.fraction(t_s, sigma_eq, windows_s, params, n0)
     windows_s = np.asarray(windows_s, dtype=float)
     length = (windows_s[:, 1] - windows_s[:, 0])[:, None]
     photons = brightness_photons_per_m2 * scale * fraction * patches.area_m2[None, :] / length

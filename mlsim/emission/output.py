@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from mlsim.emission import EmissionResult, MLPatches
+from mlsim.pipeline import atomic_bytes
 
 __all__ = ["save", "load", "write", "summary"]
 
@@ -45,13 +46,6 @@ def summary(result: EmissionResult) -> dict:
     }
 
 
-def _atomic(path: Path, data: bytes) -> Path:
-    tmp = path.with_name(f".{path.name}.part")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-    return path
-
-
 def write_csv(result: EmissionResult, path: Path) -> Path:
     per_rod = result.per_rod(_n_rods(result))
     cols = {"frame": np.arange(len(per_rod)), "exposure_start_s": result.windows_s[:, 0], "exposure_end_s": result.windows_s[:, 1],
@@ -62,7 +56,7 @@ def write_csv(result: EmissionResult, path: Path) -> Path:
     buf = io.StringIO()
     buf.write(",".join(cols) + "\n")
     np.savetxt(buf, np.column_stack(list(cols.values())), delimiter=",", fmt="%.9g")
-    return _atomic(path, buf.getvalue().encode())
+    return atomic_bytes(path, buf.getvalue().encode())
 
 
 def plot(result: EmissionResult, path: Path) -> Path:

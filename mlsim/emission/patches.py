@@ -13,9 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-__all__ = ["MLPatches", "ml_patches", "locate_points"]
+__all__ = ["MLPatches", "ml_patches"]
 
 
 @dataclass
@@ -37,29 +36,11 @@ class MLPatches:
         return len(self.vertices_m)
 
 
-def locate_points(points: np.ndarray, tets: np.ndarray, X: np.ndarray, k: int = 24) -> np.ndarray:
-    """Index (M,) of the tet (points (P, 3), tets (T, 4)) holding each of X (M, 3).
-
-    Candidates are the k tets with the nearest centroids; the holder is the one whose smallest
-    barycentric coordinate is largest (exactly the containing tet when there is one; the nearest
-    by that measure for a point just outside the curved boundary the straight tets cut)."""
-    V = points[tets]  # (T, 4, 3)
-    tree = cKDTree(V.mean(axis=1))
-    _, cand = tree.query(X, k=min(k, len(tets)))
-    cand = np.atleast_2d(cand)
-    A = V[cand]  # (M, k, 4, 3)
-    # barycentric coordinates: solve [v1 - v0, v2 - v0, v3 - v0] b = x - v0
-    E = np.stack([A[:, :, 1] - A[:, :, 0], A[:, :, 2] - A[:, :, 0], A[:, :, 3] - A[:, :, 0]], axis=-1)
-    b = np.linalg.solve(E, (X[:, None, :] - A[:, :, 0])[..., None])[..., 0]
-    bary = np.concatenate([1.0 - b.sum(axis=-1, keepdims=True), b], axis=-1)
-    best = np.argmax(bary.min(axis=-1), axis=1)
-    return cand[np.arange(len(X)), best]
-
-
 def ml_patches(geometry, mesh, segments: int = 48) -> MLPatches:
     """The emitting patches of a :class:`fem.geometry.RodArray` and the tets of its FEM ``mesh``
     (:class:`fem.mesh.TetMesh`) that hold their stress sample points."""
     from fem.geometry import emitting_surface
+    from fem.mesh import locate_points
 
     sheet = emitting_surface(geometry, segments)
     V = np.asarray(sheet.vertices, dtype=float)
@@ -67,7 +48,7 @@ def ml_patches(geometry, mesh, segments: int = 48) -> MLPatches:
     area = np.bincount(F.ravel(), weights=np.repeat(sheet.area_faces / 3.0, 3), minlength=len(V))
     normals = np.asarray(sheet.vertex_normals, dtype=float)
     sample = V + 0.5 * geometry.ml_m * normals
-    tet = locate_points(mesh.points, mesh.tets, sample)
+    tet, _ = locate_points(mesh.points, mesh.tets, sample)
     on_base = V[:, 2] <= geometry.base_thickness_m - geometry.core_depth_m + 1e-9  # the core's top, under the layers
     _, r = geometry.radial(V)
     rod = np.where(on_base & (r > geometry.rod_radius_m - geometry.core_depth_m + 1e-9), -1, geometry.rod_of(V))

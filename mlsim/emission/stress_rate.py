@@ -32,8 +32,9 @@ class StressRateParams:
             raise ValueError(f"detrapping_per_pa = {self.detrapping_per_pa}: must be finite and >= 0")
 
 
-def stress_rate_fraction(t_s, sigma_eq_pa, windows_s, params: StressRateParams = StressRateParams()):
-    """k times the positive rise of sigma_eq within each window: (F, N), and None (no state).
+def stress_rate_fraction(t_s, sigma_eq_pa, windows_s, params: StressRateParams = StressRateParams(), n0=None):
+    """k times the positive rise of sigma_eq within each window: (F, N), and None (no state; ``n0``
+    is accepted for the models' common signature and ignored: the traps never deplete).
     Shapes and units as :func:`mlsim.emission.detrapping.detrapped_fraction`."""
     times, sig, ranges = merged_grid(t_s, sigma_eq_pa, windows_s)
     rise = params.detrapping_per_pa * np.maximum(np.diff(sig, axis=0), 0.0)
