@@ -26,6 +26,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_mesh.py
 	$(PY) benchmarks/bench_tiers.py
 	$(PY) benchmarks/bench_camera.py
+	$(PY) benchmarks/bench_render.py
 
 venv: $(STAMP)
 

@@ -417,7 +417,7 @@ def midpoints_on_shared_pieces(distances, project, onto_pieces, a, b, tol_m, rod
 
 
 # -------------------------------------------------------------------------------- surfaces
-def solid_below_depth(g: RodArray, depth_m: float, segments: int = 48):
+def solid_below_depth(g: RodArray, depth_m: float, segments: int = 48, step_m: float | None = None):
     """Watertight solid (trimesh.Trimesh, metres) of the points deeper than ``depth_m`` under the
     top surface: depth 0 is the whole body; ``g.absorber_m`` is what lies inside the absorber;
     ``g.core_depth_m`` is the clear core.
@@ -425,6 +425,9 @@ def solid_below_depth(g: RodArray, depth_m: float, segments: int = 48):
     Built with manifold3d: the base slab (cut down by ``depth_m``) united with one solid of
     revolution per rod whose profile carries the quarter-circle fillet of radius ``depth_m``.
     ``segments`` is the number of facets around a full circle (vertices lie on the exact circles).
+    ``step_m``: when given, the rods' walls and tips get rings of vertices at most this far apart
+    (the emitting sheet needs them: its emission is one value per vertex); the meshing surfaces
+    leave it unset.
     """
     import manifold3d as m3
     import trimesh
@@ -441,7 +444,14 @@ def solid_below_depth(g: RodArray, depth_m: float, segments: int = 48):
         n_arc = max(2, int(math.ceil(segments / 4)))
         theta = np.linspace(0.0, math.pi / 2, n_arc + 1)[1:]
         profile += [(big_r - d * math.sin(a), t - d * math.cos(a)) for a in theta]
-    profile += [(big_r - d, t + h - d), (0.0, t + h - d)]
+    top = [(big_r - d, t + h - d), (0.0, t + h - d)]
+    if step_m is not None:
+        wall_from = profile[-1]
+        n_wall = max(1, int(math.ceil((t + h - d - wall_from[1]) / step_m)))
+        profile += [(wall_from[0], wall_from[1] + (t + h - d - wall_from[1]) * k / n_wall) for k in range(1, n_wall)]
+        n_cap = max(1, int(math.ceil((big_r - d) / step_m)))
+        top = [top[0]] + [((big_r - d) * (1 - k / n_cap), t + h - d) for k in range(1, n_cap)] + [top[1]]
+    profile += top
     stem = m3.Manifold.revolve(m3.CrossSection([profile]), circular_segments=segments)
     rods = [stem.translate([cx, cy, 0.0]) for cx, cy in g.centres_m]
     solid = m3.Manifold.batch_boolean([slab, *rods], m3.OpType.Add)
@@ -459,13 +469,13 @@ def outer_surface(g: RodArray, segments: int = 48):
     return solid_below_depth(g, 0.0, segments)
 
 
-def emitting_surface(g: RodArray, segments: int = 48):
+def emitting_surface(g: RodArray, segments: int = 48, step_m: float | None = None):
     """The inner face of the ML layer, the sheet that emits into the core (trimesh.Trimesh, metres).
 
     It is the core solid's boundary less the base bottom and base sides: an open sheet whose only
     boundary edges lie on the base's side walls. Face normals point out of the core (towards the layers).
     """
-    core = solid_below_depth(g, g.core_depth_m, segments)
+    core = solid_below_depth(g, g.core_depth_m, segments, step_m)
     tri = core.triangles
     tol = 1e-9 + 1e-6 * max(g.size_x_m, g.size_y_m)
     on_bottom = np.all(np.abs(tri[:, :, 2]) < tol, axis=1)

@@ -604,17 +604,18 @@ class CameraParams:
         _check_exposure(self.fps, self.exposure_s)
 
     @classmethod
-    def from_scene(cls, camera_spec) -> "CameraParams":
-        """Parameters from the scene's camera section (reads fps, width_px, height_px, exposure_ms, gain_db)."""
+    def from_scene(cls, camera_spec, **overrides) -> "CameraParams":
+        """Parameters from the scene's camera section: every field both carry (``exposure_ms`` and
+        ``focal_length_mm`` converted to seconds and metres; ``focal_length_mm = None`` keeps the
+        default), then ``overrides`` (e.g. the renderer's ``focal_length_m`` and ``object_distance_m``)."""
         fps, exposure_ms = float(camera_spec.fps), float(camera_spec.exposure_ms)
         _check_exposure(fps, exposure_ms * 1e-3, fps_name="camera.fps", exposure_name="camera.exposure_ms", exposure_scale=1e3)
-        return cls(
-            fps=fps,
-            width_px=int(camera_spec.width_px),
-            height_px=int(camera_spec.height_px),
-            exposure_s=exposure_ms * 1e-3,
-            gain_db=float(camera_spec.gain_db),
-        )
+        values = {f.name: getattr(camera_spec, f.name) for f in fields(cls) if hasattr(camera_spec, f.name)}
+        values["exposure_s"] = exposure_ms * 1e-3
+        if getattr(camera_spec, "focal_length_mm", None) is not None:
+            values["focal_length_m"] = camera_spec.focal_length_mm * 1e-3
+        values.update(overrides)
+        return cls(**values)
 
     # derived quantities --------------------------------------------------------------------
     @property

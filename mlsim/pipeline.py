@@ -310,7 +310,7 @@ def _emission_run(scene: Scene, inputs: dict, ctx: "RunContext"):
 
     geometry, (mesh, _), episode = inputs["geometry"], inputs["mesh"], inputs["solve"]
     spec = scene.emission
-    patches = emission.ml_patches(geometry, mesh, scene.fidelity.mesh.segments_per_circle)
+    patches = emission.ml_patches(geometry, mesh, scene.fidelity.mesh.segments_per_circle, scene.fidelity.render.sheet_edge_mm * 1e-3)
     params = emission.emission_model(spec.model).params_from(spec)
     scale = float(scene.material("ml_layer").relative_ml_peak.value) * float(phosphor_relative_brightness(scene.sensor.phosphor.loading_wt_pct))
     windows = exposure_windows_s(episode.n_frames, scene.camera.fps, scene.camera.exposure_ms * 1e-3)
@@ -342,9 +342,122 @@ def _emission_summary(result) -> dict:
     return output.summary(result)
 
 
+# Scene fields that shape the renderer's view of the sheet (not the emission): the transport matrix
+# is keyed on these, so a dataset of episodes on one sensor traces it once.
+_VIEW_FIELDS = _GEOMETRY_FIELDS + (
+    "fidelity.mesh.segments_per_circle",
+    "fidelity.render.sheet_edge_mm",
+    "optics.elastomer_refractive_index",
+    "optics.acrylic_thickness_mm",
+    "optics.acrylic_refractive_index",
+    "optics.ml_layer_reflectance",
+    "camera.width_px",
+    "camera.height_px",
+    "camera.distance_mm",
+    "camera.focal_length_mm",
+    "camera.binning",
+    "fidelity.render.max_depth",
+    "fidelity.render.rr_depth",
+)
+
+
+def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from mlsim import render
+
+    em, episode = inputs["emission"], inputs["solve"]
+    sheet = render.sensor_scene_for(scene, em.patches)
+    radiance = render.radiance_of(em.photons_per_s, em.patches.area_m2)
+    spec = scene.fidelity.render
+    if spec.tier == "transport":
+        transport = _cached_transport(scene, sheet, ctx)
+        result = render.render_frames(sheet, radiance, "transport", transport=transport)
+        result.info.update(transport_spp=transport.spp, transport_nnz=int(transport.matrix.nnz),
+                           transport_dropped_fraction=transport.dropped_fraction, transport_trace_s=transport.seconds)
+        return result
+    vertices = render.deformed_vertices(episode, em.patches.vertices_m)
+    return render.render_frames(sheet, radiance, "path", spp=spec.spp, seed=scene.seed, vertices_m=vertices, progress=ctx.progress)
+
+
+def _cached_transport(scene: Scene, sheet, ctx: "RunContext"):
+    """The transport matrix of this sensor and view, from the cache when it was traced before."""
+    import hashlib
+
+    from mlsim.render import trace_transport
+
+    spec = scene.fidelity.render
+    payload = {"view": scene.content_hash(_VIEW_FIELDS), "spp": spec.transport_spp, "drop": spec.transport_drop, "seed": scene.seed, "version": "1"}
+    key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+    if ctx.cache.has(_TRANSPORT.name, key):
+        return ctx.cache.fetch(_TRANSPORT, key)
+    ctx.log(f"[render] transport tier: tracing the light-transport matrix at {spec.transport_spp} spp (cached for this sensor and view)")
+    matrix = trace_transport(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, progress=ctx.progress)
+    ctx.cache.store(_TRANSPORT, key, matrix)
+    return matrix
+
+
+def _transport_save(matrix, directory: Path) -> None:
+    matrix.save(directory / "transport.npz")
+
+
+def _transport_load(directory: Path):
+    from mlsim.render import TransportMatrix
+
+    return TransportMatrix.load(directory / "transport.npz")
+
+
+def _render_save(result, directory: Path) -> None:
+    result.save(directory / "render.npz")
+
+
+def _render_load(directory: Path):
+    from mlsim.render import RenderResult
+
+    return RenderResult.load(directory / "render.npz")
+
+
+def _render_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from mlsim.render import output
+
+    return output.write_render(result, out_dir)
+
+
+def _render_summary(result) -> dict:
+    from mlsim.render import output
+
+    return output.render_summary(result)
+
+
+def _camera_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from mlsim.render import output
+
+    return output.expose(scene, inputs["render"], inputs["emission"], progress=ctx.progress)
+
+
+def _camera_save(result, directory: Path) -> None:
+    result.save(directory / "camera.npz")
+
+
+def _camera_load(directory: Path):
+    from mlsim.render.output import CameraFrames
+
+    return CameraFrames.load(directory / "camera.npz")
+
+
+def _camera_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from mlsim.render import output
+
+    return output.write_camera(result, out_dir)
+
+
+def _camera_summary(result) -> dict:
+    return result.summary()
+
+
 # Not a stage of the plan (its need depends on the tier): the solve stage caches it through this.
 _REDUCED_MODEL = Stage(name="reduced_model", doc="reduced tier precompute", reads=(), needs=(), run=lambda *a: None,
                        save=_reduced_save, load=_reduced_load)
+_TRANSPORT = Stage(name="transport_matrix", doc="transport tier precompute", reads=(), needs=(), run=lambda *a: None,
+                   save=_transport_save, load=_transport_load)
 
 _STAGE_LIST = [
     Stage(
@@ -390,13 +503,36 @@ _STAGE_LIST = [
     Stage(
         name="emission",
         doc="ZnS:Cu photons per second from each patch of the ML layer's inner face, per camera exposure; writes a VTU series, CSV and plot",
-        reads=_BODY_FIELDS + ("sensor", "emission", "camera.fps", "camera.exposure_ms", "fidelity.mesh.segments_per_circle"),
+        reads=_BODY_FIELDS + ("sensor", "emission", "camera.fps", "camera.exposure_ms", "fidelity.mesh.segments_per_circle",
+                                "fidelity.render.sheet_edge_mm"),
         needs=("geometry", "mesh", "solve"),
         run=_emission_run,
         save=_emission_save,
         load=_emission_load,
         write=_emission_write,
         summarize=_emission_summary,
+    ),
+    Stage(
+        name="render",
+        doc="radiance of the ML light at the camera's lens per frame (Mitsuba: transport or path tier); writes radiance.npz and a PNG",
+        reads=_VIEW_FIELDS + ("fidelity.render", "seed"),
+        needs=("emission", "solve"),
+        run=_render_run,
+        save=_render_save,
+        load=_render_load,
+        write=_render_write,
+        summarize=_render_summary,
+    ),
+    Stage(
+        name="camera",
+        doc="8-bit RGB camera frames (radiometry, spectra, noise, ADC); writes an MP4, PNG frames, a contact sheet and a per-frame CSV",
+        reads=("camera", "optics", "sensor", "seed"),
+        needs=("render", "emission"),
+        run=_camera_run,
+        save=_camera_save,
+        load=_camera_load,
+        write=_camera_write,
+        summarize=_camera_summary,
     ),
     Stage(
         name="verify_s2",

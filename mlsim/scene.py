@@ -333,9 +333,11 @@ class EmissionSpec(_Model):
     detrapping_per_pa: NonNeg = 2e-7  # fraction of filled traps a 1 Pa rise empties
     recovery_time_s: Pos = 1.0  # self-recovering ZnS:Cu refills its traps with this time constant
     # photons per m^2 of ML layer when all its traps empty, before the host and loading factors.
-    # Provisional order of magnitude (trap density 1e23 m^-3 x phosphor volume fraction 0.29 at
-    # 60 wt% x 0.5 mm x radiative yield 0.7 = 1e19) until the render stage's calibration sets it.
-    brightness_photons_per_m2: NonNeg = 1e19
+    # Calibrated (mlsim.render.calibration; benchmarks/calibrate_brightness.py): a 16 N press of the
+    # default probe over 0.15 s on the default sensor at default camera settings reaches green 192
+    # of 255 at the 99.5th percentile of its brightest frame. Order of magnitude check: trap density
+    # 1e23 m^-3 x phosphor volume fraction 0.29 x 0.5 mm x radiative yield 0.7 = 1e19.
+    brightness_photons_per_m2: NonNeg = 2.7e19
 
 
 # ------------------------------------------------------------------------------ optics and camera
@@ -347,6 +349,10 @@ class OpticsSpec(_Model):
     acrylic_thickness_mm: Pos = 3.0  # SPEC 1.1: not given, default 3 mm
     acrylic_refractive_index: Annotated[float, Strict(), Field(ge=1.0, le=3.0)] = 1.49  # SPEC 1.1
     absorber: Literal[ABSORBERS] = "black_silicone_pigment"  # SPEC 1.3
+    # Diffuse (Lambertian) reflectance of the ML layer's inner face as seen from the clear core:
+    # ZnS:Cu powder is off-white, the black absorber behind it takes what passes. Not given; 0.5
+    # is a middle value for a 0.5 mm phosphor-loaded silicone sheet on black (see mlsim.render).
+    ml_layer_reflectance: Annotated[float, Strict(), Field(ge=0.0, le=0.99)] = 0.5
 
 
 class CameraSpec(_Model):
@@ -356,9 +362,24 @@ class CameraSpec(_Model):
     width_px: Annotated[int, Strict(), Field(ge=8, le=8192)] = 350
     height_px: Annotated[int, Strict(), Field(ge=8, le=8192)] = 350
     distance_mm: Pos = 40.0  # lens to the acrylic's bottom face; not given
-    fov_deg: Annotated[float, Strict(), Field(gt=0, lt=180)] = 55.0  # not given; sees the 36 mm surface
+    # None: the focal length that fits the sensing surface plus 5 % each side into the crop, focused
+    # on the base (mlsim.render.optics.camera_params); M12 board lenses span about 1.5-8 mm.
+    focal_length_mm: Pos | None = None
+    f_number: Annotated[float, Strict(), Field(ge=0.5, le=64)] = 2.0  # typical M12 board lens; not given
+    binning: Annotated[int, Strict(), Field(ge=1, le=16)] = 4  # native 1.45 um pixels per output pixel (mlsim.camera)
     exposure_ms: Pos = 33.0
-    gain_db: NonNeg = 0.0
+    gain_db: Annotated[float, Strict(), Field(ge=0, le=72)] = 0.0
+    # the sensor model of mlsim.camera (IMX415-class defaults, per native pixel; typical, not given)
+    full_well_e: Pos = 5000.0
+    read_noise_e: NonNeg = 2.0
+    dark_current_e_per_s: NonNeg = 5.0
+    conversion_gain_dn_per_e: Pos = 0.2
+    black_level_dn: NonNeg = 50.0
+    adc_bits: Annotated[int, Strict(), Field(ge=8, le=16)] = 10
+    lens_transmittance: Annotated[float, Strict(), Field(gt=0, le=1)] = 0.9
+    bayer: Bool = True
+    noise: Bool = True  # false: the noiseless mean frame (still quantised)
+    sensitivity: str = "imx415_like"  # a shipped QE set or a CSV (nm, R, G, B) (mlsim.spectra.camera_sensitivity_msds)
 
 
 class AmbientSpec(_Model):
@@ -419,8 +440,20 @@ class SolveFidelity(_Model):
 
 
 class RenderFidelity(_Model):
+    """Light transport (:mod:`mlsim.render`). ``path``: Mitsuba path-traces every frame on the deformed
+    sheet with ``spp`` samples per pixel. ``transport``: one sparse pixels x patches matrix traced once
+    per geometry with ``transport_spp`` samples per pixel (cached), then each frame is a product;
+    entries below ``transport_drop`` times the largest are dropped (the dropped share is reported)."""
+
     tier: Literal["transport", "path"] = "transport"
     spp: Annotated[int, Strict(), Field(ge=1, le=65536)] = 16
+    # The emitting sheet's edges are split down to this length: emission is linear over each face
+    # and one value per vertex (mlsim.emission.patches); 1 mm is half the default tet edge.
+    sheet_edge_mm: Annotated[float, Strict(), Field(ge=0.05, le=50.0)] = 1.0
+    transport_spp: Annotated[int, Strict(), Field(ge=1, le=4096)] = 64
+    transport_drop: Annotated[float, Strict(), Field(ge=0.0, lt=1.0)] = 1e-4
+    max_depth: Annotated[int, Strict(), Field(ge=3, le=64)] = 12  # camera, acrylic, core: 3 vertices reach the sheet
+    rr_depth: Annotated[int, Strict(), Field(ge=1, le=64)] = 5  # Russian roulette from this depth on
 
 
 class FidelitySpec(_Model):
@@ -602,7 +635,7 @@ def check_consistency(scene: Scene) -> list[Problem]:
     for i, out in enumerate(scene.outputs):
         if out not in OUTPUTS:
             problems.append(Problem(f"outputs[{i}]", out, f"unknown output; choose from: {', '.join(OUTPUTS)}"))
-        elif out in ("solve", "emission") and scene.load is None:
+        elif out in ("solve", "emission", "render", "camera") and scene.load is None:
             problems.append(Problem(f"outputs[{i}]", out, f"the {out} stage needs a [load] section (an indenter and its segments)"))
         elif out == "verify_s2" and scene.verify_s2 is None:
             problems.append(Problem(f"outputs[{i}]", out, "the verification needs a [verify_s2] section (see scenes/verify_fem_s2.toml)"))

@@ -1,0 +1,153 @@
+"""Render: the radiance the camera's lens receives from the glowing ML layer, per frame.
+
+Two tiers behind one function (:func:`render_frames`), selected by ``fidelity.render.tier``:
+
+- ``path`` (:meth:`mlsim.render.sensor_scene.SensorScene.render`): Mitsuba path-traces every frame
+  on the deformed sheet, ``fidelity.render.spp`` samples per pixel;
+- ``transport`` (:mod:`mlsim.render.transport`): one sparse pixels x vertices matrix traced once per
+  geometry (cached by the pipeline), then every frame is a sparse product.
+
+Both return mono photon radiance (photons s^-1 m^-2 sr^-1 of ZnS:Cu light, (F, H, W)); the camera
+stage turns it into per-channel radiance with :func:`mlsim.render.optics.ml_channel_factors`.
+
+Frames the renderer never sees: a frame whose emission is zero everywhere (the stress is not
+changing) renders to exactly zero and is not rendered (``RenderResult.rendered`` is False; the
+camera draws its sensor noise); a frame with the same emission and geometry as the frame before
+reuses that frame's image.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mlsim.render.optics import View, camera_params, ml_channel_factors, rod_disks_px, view_of
+from mlsim.render.sensor_scene import SensorScene, radiance_of
+from mlsim.render.transport import TransportMatrix, trace_transport
+
+__all__ = ["RENDER_TIERS", "RenderResult", "render_frames", "sensor_scene_for", "deformed_vertices", "View", "view_of",
+           "camera_params", "ml_channel_factors", "rod_disks_px", "SensorScene", "radiance_of", "TransportMatrix",
+           "trace_transport"]
+
+RENDER_TIERS = ("transport", "path")
+
+
+@dataclass
+class RenderResult:
+    """radiance (F, H, W) float32 photons s^-1 m^-2 sr^-1 at the lens (mono, ZnS:Cu light);
+    rendered (F,) bool: frames the renderer computed (False: dark or repeated); seconds per
+    computed frame (F,) (0 where not computed); the tier and samples per pixel."""
+
+    radiance: np.ndarray
+    rendered: np.ndarray
+    frame_seconds: np.ndarray
+    tier: str
+    spp: int
+    info: dict = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.radiance)
+
+    def save(self, path) -> None:
+        np.savez(path, radiance=self.radiance, rendered=self.rendered, frame_seconds=self.frame_seconds,
+                 tier=self.tier, spp=self.spp, info=np.array(repr(self.info)))
+
+    @classmethod
+    def load(cls, path) -> "RenderResult":
+        import ast
+
+        z = np.load(path)
+        return cls(z["radiance"], z["rendered"], z["frame_seconds"], str(z["tier"]), int(z["spp"]), ast.literal_eval(str(z["info"])))
+
+
+def sensor_scene_for(scene, patches) -> SensorScene:
+    """The :class:`SensorScene` of a scene whose emitting sheet is ``patches``
+    (:class:`mlsim.emission.MLPatches`)."""
+    from fem.geometry import RodArray
+
+    g = RodArray.from_sensor(scene.sensor)
+    o, r = scene.optics, scene.fidelity.render
+    return SensorScene(patches.vertices_m, patches.faces, view_of(scene), core_ior=o.elastomer_refractive_index,
+                       acrylic_ior=o.acrylic_refractive_index, acrylic_thickness_m=o.acrylic_thickness_mm * 1e-3,
+                       base_half_size_m=max(g.size_x_m, g.size_y_m) / 2, reflectance=o.ml_layer_reflectance,
+                       max_depth=r.max_depth, rr_depth=r.rr_depth)
+
+
+def deformed_vertices(episode, vertices_m) -> np.ndarray:
+    """The sheet's vertices (N, 3) moved by the FEM displacement at each frame: (F, N, 3) m.
+
+    The displacement is interpolated linearly in the tet of the solve's mesh that holds each vertex
+    (:func:`fem.mesh.locate_points`; a vertex on the curved core boundary just outside the straight
+    tets takes its nearest tet's extrapolation)."""
+    from fem.mesh import locate_points
+
+    V = np.asarray(vertices_m, dtype=float)
+    tet, bary = locate_points(episode.mesh_points, episode.mesh_tets, V)
+    corners = episode.mesh_tets[tet]  # (N, 4)
+    u = episode.displacement[episode.frame_step]  # (F, P, 3)
+    return V[None] + np.einsum("nk,fnkd->fnd", bary, u[:, corners, :].astype(float))
+
+
+def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "transport", *, spp: int = 16, seed: int = 0,
+                  vertices_m=None, transport: TransportMatrix | None = None, progress: bool = False) -> RenderResult:
+    """Radiance images (F, H, W) of per-vertex radiance (F, N) (see :func:`radiance_of`).
+
+    tier ``transport`` needs ``transport`` (a :class:`TransportMatrix` of this sheet); ``path`` renders
+    with Mitsuba at ``spp``, frame f with the seed (seed, f), on ``vertices_m`` (F, N, 3) when given
+    (the deformed sheet), else on the sheet as built.
+    """
+    if tier not in RENDER_TIERS:
+        raise ValueError(f'render tier "{tier}": choose one of {", ".join(RENDER_TIERS)}')
+    e = np.asarray(vertex_radiance, dtype=np.float32)
+    if e.ndim != 2 or e.shape[1] != sensor_scene.n_vertices:
+        raise ValueError(f"vertex_radiance of shape {e.shape}: must be (frames, {sensor_scene.n_vertices})")
+    if not np.all(np.isfinite(e)) or (e.size and e.min() < 0):
+        raise ValueError("vertex_radiance must be finite and >= 0")
+    view = sensor_scene.view
+    F = len(e)
+    out = np.zeros((F, view.height_px, view.width_px), np.float32)
+    rendered = np.zeros(F, bool)
+    seconds = np.zeros(F)
+    lit = e.max(axis=1) > 0 if e.size else np.zeros(F, bool)
+    same = np.zeros(F, bool)
+    same[1:] = lit[1:] & np.all(e[1:] == e[:-1], axis=1)
+    if vertices_m is not None:
+        vertices_m = np.asarray(vertices_m, dtype=float)
+        if vertices_m.shape != (F, sensor_scene.n_vertices, 3):
+            raise ValueError(f"vertices_m of shape {vertices_m.shape}: must be ({F}, {sensor_scene.n_vertices}, 3)")
+        same[1:] &= np.all(vertices_m[1:] == vertices_m[:-1], axis=(1, 2))
+    todo = np.flatnonzero(lit & ~same)
+    if tier == "transport":
+        if transport is None:
+            raise ValueError("the transport tier needs the sheet's TransportMatrix (trace_transport)")
+        if transport.n_vertices != sensor_scene.n_vertices or (transport.height_px, transport.width_px) != (view.height_px, view.width_px):
+            raise ValueError("the TransportMatrix was traced for another sheet or view: trace it again")
+        t0 = time.perf_counter()
+        if len(todo):
+            out[todo] = transport.apply(e[todo])
+        seconds[todo] = (time.perf_counter() - t0) / max(len(todo), 1)
+    else:
+        from tqdm.auto import tqdm
+
+        for f in tqdm(todo, desc="path tracing", unit="frame", disable=None if progress else True, leave=False):
+            t0 = time.perf_counter()
+            if vertices_m is not None:
+                sensor_scene.set_vertices(vertices_m[f])
+            sensor_scene.set_radiance(e[f])
+            out[f] = sensor_scene.render(spp, _frame_seed(seed, f))
+            seconds[f] = time.perf_counter() - t0
+    rendered[todo] = True
+    for f in np.flatnonzero(same):  # in order, so a run of repeats copies its first frame
+        out[f] = out[f - 1]
+    return RenderResult(out, rendered, seconds, tier, int(spp if tier == "path" else (transport.spp if transport else 0)))
+
+
+def _frame_seed(seed: int, frame: int) -> int:
+    """A 32-bit seed per (scene seed, frame): splitmix-style mixing, so neighbouring seeds differ."""
+    x = (int(seed) * 0x9E3779B97F4A7C15 + int(frame) * 0xBF58476D1CE4E5B9 + 1) & 0xFFFFFFFFFFFFFFFF
+    x ^= x >> 31
+    x = (x * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+    return (x ^ (x >> 29)) & 0xFFFFFFFF

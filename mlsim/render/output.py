@@ -1,0 +1,210 @@
+"""The camera stage and the files of the render and camera stages.
+
+:func:`expose` turns the render stage's mono radiance into 8-bit RGB frames: per-channel photon
+radiance = radiance x :func:`mlsim.render.optics.ml_channel_factors`, then :func:`mlsim.camera.capture`
+with the scene's camera (one seeded generator for the whole episode: same scene, same bytes).
+Frames the renderer skipped are zero radiance: their pixels are the sensor's noise alone.
+
+Files: ``camera.mp4`` (OpenCV, MPEG-4 part 2, at the camera's frame rate), ``frames/frame_NNNN.png``
+(lossless, what a dataset should use), ``contact_sheet.png`` (a labelled grid of the episode),
+``camera_frames.csv`` (per frame: time, exposure window, whether it was rendered, total intensity,
+per rod the photons emitted in the exposure and the mean signal electrons in its disk).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["CameraFrames", "expose", "write_camera", "write_render", "render_summary", "contact_sheet", "write_mp4"]
+
+
+@dataclass
+class CameraFrames:
+    """frames (F, H, W, 3) uint8 RGB; windows_s (F, 2) exposure windows; rendered (F,) bool;
+    rod_photons (F, R) photons emitted per rod in each exposure; rod_signal_e (F, R) mean noiseless
+    signal electrons per pixel (R + G + B) in each rod's disk; fps."""
+
+    frames: np.ndarray
+    windows_s: np.ndarray
+    rendered: np.ndarray
+    rod_photons: np.ndarray
+    rod_signal_e: np.ndarray
+    fps: float
+
+    def save(self, path) -> None:
+        np.savez(path, frames=self.frames, windows_s=self.windows_s, rendered=self.rendered, rod_photons=self.rod_photons,
+                 rod_signal_e=self.rod_signal_e, fps=self.fps)
+
+    @classmethod
+    def load(cls, path) -> "CameraFrames":
+        z = np.load(path)
+        return cls(z["frames"], z["windows_s"], z["rendered"], z["rod_photons"], z["rod_signal_e"], float(z["fps"]))
+
+    def summary(self) -> dict:
+        f = self.frames.astype(np.float64)
+        return {
+            "n_frames": int(len(f)),
+            "rendered_frames": int(self.rendered.sum()),
+            "max_dn": [int(self.frames[..., c].max()) for c in range(3)],
+            "mean_dn_per_frame": [round(float(v), 3) for v in f.mean(axis=(1, 2, 3))],
+            "peak_rod_signal_e": float(self.rod_signal_e.max()) if self.rod_signal_e.size else 0.0,
+        }
+
+
+def disk_masks(height_px: int, width_px: int, centres_px, radius_px: float) -> np.ndarray:
+    """(R, H, W) bool: pixels whose centre lies within radius_px of each centre (column, row)."""
+    rows, cols = np.mgrid[0:height_px, 0:width_px]
+    c = np.asarray(centres_px, dtype=float)
+    return (cols[None] - c[:, 0, None, None]) ** 2 + (rows[None] - c[:, 1, None, None]) ** 2 <= radius_px**2
+
+
+def expose(scene, render_result, emission_result, progress: bool = False) -> CameraFrames:
+    """The camera stage: 8-bit frames of a :class:`mlsim.render.RenderResult` (module docstring)."""
+    from fem.geometry import RodArray
+    from mlsim.camera import Camera
+    from mlsim.render.optics import camera_params, ml_channel_factors, rod_disks_px
+
+    params = camera_params(scene)
+    camera = Camera(params)
+    k = ml_channel_factors(scene).astype(np.float32)  # electrons per photon, R G B
+    rng = np.random.default_rng([scene.seed, 0xCA3E7A])  # the camera's own stream
+    rad = render_result.radiance
+    F, H, W = rad.shape
+    frames = np.empty((F, H, W, 3), np.uint8)
+    for f in range(F):
+        frames[f] = camera(rad[f][..., None] * k, rng, noise=scene.camera.noise)
+    g = RodArray.from_sensor(scene.sensor)
+    windows = emission_result.windows_s
+    rod_photons = emission_result.per_rod(g.n_rods)[:, : g.n_rods] * (windows[:, 1] - windows[:, 0])[:, None]
+    centres, radius = rod_disks_px(scene)
+    masks = disk_masks(H, W, centres, radius).reshape(g.n_rods, -1).astype(np.float32)
+    per_pixel_e = rad.reshape(F, -1) * (float(k.sum()) * params.electrons_per_radiance_m2_sr_s)
+    rod_signal_e = (per_pixel_e @ masks.T) / masks.sum(axis=1)[None]
+    return CameraFrames(frames, windows, render_result.rendered.copy(), rod_photons, rod_signal_e, params.fps)
+
+
+# ------------------------------------------------------------------------------------------ files
+def _atomic(path: Path, write) -> Path:
+    """Write through a temporary name with the same suffix (OpenCV picks the format by it), then rename."""
+    tmp = path.with_name(f".{path.stem}.part{path.suffix}")
+    write(tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def write_png(path: Path, rgb: np.ndarray) -> Path:
+    import cv2
+
+    def write(tmp):
+        if not cv2.imwrite(str(tmp), np.ascontiguousarray(rgb[..., ::-1])):
+            raise OSError(f"OpenCV could not write {tmp}")
+
+    return _atomic(Path(path), write)
+
+
+def write_mp4(path: Path, frames: np.ndarray, fps: float) -> Path:
+    """MPEG-4 (``mp4v``) video of RGB frames (F, H, W, 3) uint8 with OpenCV."""
+    import cv2
+
+    F, H, W, _ = frames.shape
+
+    def write(tmp):
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (W, H))
+        if not writer.isOpened():
+            raise OSError(f"OpenCV cannot write MPEG-4 video to {tmp} (no FFmpeg back-end?); the PNG frames are written anyway")
+        for f in range(F):
+            writer.write(np.ascontiguousarray(frames[f, :, :, ::-1]))
+        writer.release()
+
+    return _atomic(Path(path), write)
+
+
+def contact_sheet(frames: np.ndarray, times_s: np.ndarray, max_tiles: int = 24, columns: int = 6) -> np.ndarray:
+    """A labelled grid (RGB uint8) of up to ``max_tiles`` frames spread evenly over the episode."""
+    import cv2
+
+    F, H, W, _ = frames.shape
+    pick = np.unique(np.round(np.linspace(0, F - 1, min(max_tiles, F))).astype(int))
+    cols = min(columns, len(pick))
+    rows = -(-len(pick) // cols)
+    pad = 4
+    sheet = np.full((rows * (H + pad) + pad, cols * (W + pad) + pad, 3), 32, np.uint8)
+    for i, f in enumerate(pick):
+        r, c = divmod(i, cols)
+        y, x = pad + r * (H + pad), pad + c * (W + pad)
+        tile = frames[f].copy()
+        cv2.putText(tile, f"#{f}  {times_s[f] * 1e3:.0f} ms", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+        sheet[y : y + H, x : x + W] = tile
+    return sheet
+
+
+def write_camera(result: CameraFrames, out_dir: Path) -> list[Path]:
+    from mlsim.pipeline import atomic_bytes
+
+    out_dir = Path(out_dir)
+    frame_dir = out_dir / "frames"
+    frame_dir.mkdir(parents=True, exist_ok=True)
+    files = [write_png(frame_dir / f"frame_{f:04d}.png", result.frames[f]) for f in range(len(result.frames))]
+    files.append(write_mp4(out_dir / "camera.mp4", result.frames, result.fps))
+    files.append(write_png(out_dir / "contact_sheet.png", contact_sheet(result.frames, result.windows_s[:, 0])))
+    cols = {
+        "frame": np.arange(len(result.frames)),
+        "t_s": result.windows_s[:, 0],
+        "exposure_end_s": result.windows_s[:, 1],
+        "rendered": result.rendered.astype(int),
+        "mean_dn": result.frames.astype(np.float64).mean(axis=(1, 2, 3)),
+        "sum_dn": result.frames.astype(np.float64).sum(axis=(1, 2, 3)),
+    }
+    for r in range(result.rod_photons.shape[1]):
+        cols[f"rod{r}_photons"] = result.rod_photons[:, r]
+    for r in range(result.rod_signal_e.shape[1]):
+        cols[f"rod{r}_signal_e"] = result.rod_signal_e[:, r]
+    buf = io.StringIO()
+    buf.write(",".join(cols) + "\n")
+    np.savetxt(buf, np.column_stack(list(cols.values())), delimiter=",", fmt="%.9g")
+    files.append(atomic_bytes(out_dir / "camera_frames.csv", buf.getvalue().encode()))
+    return files
+
+
+def write_render(result, out_dir: Path) -> list[Path]:
+    """``render_radiance.npz`` (float32 radiance per frame) and ``render_peak.png`` (the brightest frame, false colour)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mlsim.plots import save_png
+
+    out_dir = Path(out_dir)
+    npz = out_dir / "render_radiance.npz"
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, radiance_photons_s_m2_sr=result.radiance, rendered=result.rendered, tier=result.tier, spp=result.spp)
+
+    _atomic(npz, write)
+    f = int(np.argmax(result.radiance.reshape(len(result.radiance), -1).sum(axis=1))) if result.n_frames else 0
+    fig, ax = plt.subplots(figsize=(6, 5), constrained_layout=True)
+    im = ax.imshow(result.radiance[f], cmap="inferno")
+    fig.colorbar(im, ax=ax, label="radiance at the lens (photons s$^{-1}$ m$^{-2}$ sr$^{-1}$)")
+    ax.set(title=f"frame {f}, {result.tier} tier", xlabel="column (px)", ylabel="row (px)")
+    return [npz, save_png(fig, out_dir / "render_peak.png")]
+
+
+def render_summary(result) -> dict:
+    total = result.radiance.reshape(result.n_frames, -1).sum(axis=1)
+    rendered_s = result.frame_seconds[result.rendered]
+    return {
+        "tier": result.tier,
+        "spp": result.spp,
+        "n_frames": result.n_frames,
+        "rendered_frames": int(result.rendered.sum()),
+        "median_seconds_per_rendered_frame": float(np.median(rendered_s)) if rendered_s.size else 0.0,
+        "peak_frame": int(np.argmax(total)) if result.n_frames else None,
+        **{k: v for k, v in result.info.items()},
+    }

@@ -1,0 +1,152 @@
+"""The Mitsuba scene of the sensor seen from below, and the one thin stateful wrapper around it.
+
+What is in it (lengths in millimetres inside Mitsuba: its ray offsets scale with the coordinates'
+magnitude, about 1e-4 of it, which would be a tenth of a millimetre in metres, more than the
+layers):
+
+- the emitting sheet: the ML layer's inner face (:func:`fem.geometry.emitting_surface`), faces
+  turned so that the normals point into the clear core. BSDF ``diffuse`` with the ML layer's
+  reflectance (``optics.ml_layer_reflectance``); an ``area`` emitter whose radiance is the mesh
+  attribute ``vertex_emission``, linear over each face (so the flux of a vertex of area A and
+  radiance L is pi L A, the patch's photon rate: :func:`radiance_of`);
+- the core's bottom face, z = 0: a ``dielectric`` between the core (``optics.elastomer_refractive_index``,
+  above) and the acrylic (``optics.acrylic_refractive_index``, below), the size of the base;
+- the acrylic's bottom face, z = -a: a ``dielectric`` between the acrylic and air, twice the size
+  of the base so that light leaving the base obliquely still exits;
+- a pinhole camera at the lens (:mod:`mlsim.render.optics`), box pixel filter (a pixel is the mean
+  radiance over its footprint), ``path`` integrator.
+
+Left out, and why: the base's side walls and the acrylic's edges (light that reaches them leaves
+the field of view in the real sensor too, so they are absorbing here); the absorber and what lies
+outside the ML layer (no light reaches the core from there except ambient leakage, which
+:mod:`mlsim.render.ambient` adds as its own emission component); dispersion (one index per
+material, see the spectral shortcut in :mod:`mlsim.render.optics`).
+
+Variant: ``llvm_ad_mono`` (the CPU JIT variants need libLLVM 17+, the scalar variants crash with
+a ``mesh_attribute`` emitter). The renders are mono: the spectrum is applied afterwards.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["VARIANT", "use_variant", "SensorScene", "radiance_of"]
+
+VARIANT = "llvm_ad_mono"
+
+
+def use_variant():
+    """Import Mitsuba in the renderer's variant; a clear error when the JIT back-end is missing."""
+    try:
+        import mitsuba as mi
+    except ImportError as exc:  # pragma: no cover - an install problem
+        raise ImportError(f"mitsuba is not installed ({exc}); run `make venv`") from None
+    if mi.variant() != VARIANT:
+        try:
+            mi.set_variant(VARIANT)
+        except Exception as exc:  # pragma: no cover - a machine problem
+            raise RuntimeError(
+                f"Mitsuba variant {VARIANT} failed to start ({exc}). It needs libLLVM 17 or newer: "
+                "`apt-get install -y libllvm19`, or set DRJIT_LIBLLVM_PATH to a libLLVM.so (17+)"
+            ) from None
+    return mi
+
+
+def radiance_of(photons_per_s, area_m2) -> np.ndarray:
+    """Lambertian radiance (photons s^-1 m^-2 sr^-1) of patches emitting ``photons_per_s`` from
+    ``area_m2`` each: L = Phi / (pi A). Works on (..., N) arrays."""
+    return np.asarray(photons_per_s, dtype=float) / (np.pi * np.asarray(area_m2, dtype=float))
+
+
+class SensorScene:
+    """A Mitsuba scene of one emitting sheet behind the core/acrylic/air interfaces.
+
+    sheet_vertices_m (N, 3) and sheet_faces (K, 3) with normals out of the core (as
+    :func:`fem.geometry.emitting_surface` gives them; turned here); ``view``: a
+    :class:`mlsim.render.optics.View`. Emission and vertex positions change in place
+    (:meth:`set_radiance`, :meth:`set_vertices`) without recompiling anything.
+    """
+
+    def __init__(self, sheet_vertices_m, sheet_faces, view, *, core_ior: float = 1.41, acrylic_ior: float = 1.49,
+                 acrylic_thickness_m: float = 3e-3, base_half_size_m: float | None = None, reflectance: float = 0.5,
+                 max_depth: int = 12, rr_depth: int = 5):
+        mi = use_variant()
+        V = np.asarray(sheet_vertices_m, dtype=float)
+        F = np.asarray(sheet_faces)
+        if V.ndim != 2 or V.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
+            raise ValueError(f"sheet of {V.shape} vertices and {F.shape} faces: must be (N, 3) and (K >= 1, 3)")
+        if F.min() < 0 or F.max() >= len(V):
+            raise ValueError(f"sheet faces index vertices 0..{F.max()}, but there are {len(V)} vertices")
+        if not 0.0 <= reflectance < 1.0:
+            raise ValueError(f"reflectance = {reflectance}: must be in [0, 1)")
+        self.view = view
+        self.n_vertices = len(V)
+        self.faces = F[:, ::-1].astype(np.uint32)  # normals into the core: the emitter's front side
+        half_mm = 1e3 * (base_half_size_m if base_half_size_m is not None else max(np.abs(V[:, :2]).max(), 1e-4))
+        props = mi.Properties()
+        props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "spectrum", "value": float(reflectance)}})
+        props["emitter"] = mi.load_dict({"type": "area", "radiance": {"type": "mesh_attribute", "name": "vertex_emission"}})
+        self._mesh = mi.Mesh("ml_sheet", len(V), len(F), props=props, has_vertex_normals=False)
+        self._params = mi.traverse(self._mesh)
+        self._params["faces"] = mi.UInt32(self.faces.ravel())
+        self._params["vertex_positions"] = mi.Float((V * 1e3).astype(np.float32).ravel())
+        self._mesh.add_attribute("vertex_emission", 1, mi.Float(np.zeros(len(V), np.float32)))
+        self._params.update()
+        self._params = mi.traverse(self._mesh)  # now with the attribute
+        self.vertices_mm = (V * 1e3).astype(np.float32)
+
+        def interface(z_mm, n_inside, n_outside, half):
+            # A rectangle's normal is +z; turned over it faces the camera (-z): the side opposite the
+            # normal is the dielectric's interior, the medium above.
+            to_world = mi.ScalarTransform4f().translate([0.0, 0.0, z_mm]).scale([half, half, 1.0]).rotate([1, 0, 0], 180)
+            return {"type": "rectangle", "to_world": to_world, "bsdf": {"type": "dielectric", "int_ior": n_inside, "ext_ior": n_outside}}
+
+        a_mm = acrylic_thickness_m * 1e3
+        lens_mm = view.lens_below_base_m * 1e3
+        self.scene = mi.load_dict({
+            "type": "scene",
+            "integrator": {"type": "path", "max_depth": int(max_depth), "rr_depth": int(rr_depth)},
+            "sensor": {
+                "type": "perspective",
+                "fov": view.fov_x_deg,
+                "fov_axis": "x",
+                "near_clip": 1e-2,
+                "far_clip": 1e4,
+                "to_world": mi.ScalarTransform4f().look_at(origin=[0.0, 0.0, -lens_mm], target=[0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0]),
+                "film": {"type": "hdrfilm", "width": int(view.width_px), "height": int(view.height_px),
+                         "rfilter": {"type": "box"}, "pixel_format": "luminance"},
+                "sampler": {"type": "independent", "sample_count": 1},
+            },
+            "sheet": self._mesh,
+            "core_bottom": interface(0.0, float(core_ior), float(acrylic_ior), half_mm),
+            "acrylic_bottom": interface(-a_mm, float(acrylic_ior), 1.0, 2.0 * half_mm),
+        })
+        self.max_depth, self.rr_depth = int(max_depth), int(rr_depth)
+
+    # -- the two things that change per frame ----------------------------------------------------
+    def set_radiance(self, radiance) -> None:
+        """Per-vertex radiance (N,), photons s^-1 m^-2 sr^-1 (see :func:`radiance_of`)."""
+        mi = use_variant()
+        r = np.asarray(radiance, dtype=np.float32)
+        if r.shape != (self.n_vertices,):
+            raise ValueError(f"radiance of shape {r.shape}: must be ({self.n_vertices},), one value per sheet vertex")
+        if not np.all(np.isfinite(r)) or r.min() < 0:
+            raise ValueError("radiance must be finite and >= 0")
+        self._params["vertex_emission"] = mi.Float(r)
+        self._params.update()
+
+    def set_vertices(self, vertices_m) -> None:
+        """Move the sheet's vertices (N, 3) m (the deformed ML layer; the BVH is rebuilt)."""
+        mi = use_variant()
+        v = (np.asarray(vertices_m, dtype=float) * 1e3).astype(np.float32)
+        if v.shape != (self.n_vertices, 3) or not np.all(np.isfinite(v)):
+            raise ValueError(f"vertices of shape {v.shape}: must be finite, ({self.n_vertices}, 3)")
+        self.vertices_mm = v
+        self._params["vertex_positions"] = mi.Float(v.ravel())
+        self._params.update()
+
+    def render(self, spp: int, seed: int) -> np.ndarray:
+        """Radiance image (H, W) float32 with the current emission: Mitsuba's ``path`` integrator."""
+        mi = use_variant()
+        img = mi.render(self.scene, spp=int(spp), seed=int(seed) & 0xFFFFFFFF)
+        return np.array(img, dtype=np.float32)[:, :, 0]
