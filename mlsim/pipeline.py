@@ -148,6 +148,29 @@ _BODY_FIELDS = (
 )
 
 
+def _npz_io(filename: str, cls: str):
+    """(save, load) of a result with ``result.save(path)`` and ``Cls.load(path)``; ``cls`` is
+    "module:Name", imported when a cached result is loaded (heavy modules stay unimported)."""
+
+    def save(result, directory: Path) -> None:
+        result.save(directory / filename)
+
+    def load(directory: Path):
+        import importlib
+
+        module, name = cls.split(":")
+        return getattr(importlib.import_module(module), name).load(directory / filename)
+
+    return save, load
+
+
+_solve_save, _solve_load = _npz_io("episode.npz", "fem.quasistatic:Episode")
+_reduced_save, _reduced_load = _npz_io("reduced.npz", "fem.quasistatic:ReducedModel")
+_transport_save, _transport_load = _npz_io("transport.npz", "mlsim.render:TransportMatrix")
+_render_save, _render_load = _npz_io("render.npz", "mlsim.render:RenderResult")
+_camera_save, _camera_load = _npz_io("camera.npz", "mlsim.render.output:CameraFrames")
+
+
 def _solve_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from fem.quasistatic import run_episode
 
@@ -174,16 +197,6 @@ def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
     model = build_reduced(scene, mesh)
     ctx.cache.store(stage, key, model)
     return model
-
-
-def _solve_save(episode, directory: Path) -> None:
-    episode.save(directory / "episode.npz")
-
-
-def _solve_load(directory: Path):
-    from fem.quasistatic import Episode
-
-    return Episode.load(directory / "episode.npz")
 
 
 def _solve_write(episode, out_dir: Path, ctx: "RunContext") -> list[Path]:
@@ -258,16 +271,6 @@ def _plot_solve(ep, path: Path) -> Path:
 
 def _solve_summary(episode) -> dict:
     return episode.summary()
-
-
-def _reduced_save(model, directory: Path) -> None:
-    model.save(directory / "reduced.npz")
-
-
-def _reduced_load(directory: Path):
-    from fem.quasistatic import ReducedModel
-
-    return ReducedModel.load(directory / "reduced.npz")
 
 
 def _verify_s2_run(scene: Scene, inputs: dict, ctx: "RunContext"):
@@ -395,26 +398,6 @@ def _cached_transport(scene: Scene, sheet, ctx: "RunContext"):
     return matrix
 
 
-def _transport_save(matrix, directory: Path) -> None:
-    matrix.save(directory / "transport.npz")
-
-
-def _transport_load(directory: Path):
-    from mlsim.render import TransportMatrix
-
-    return TransportMatrix.load(directory / "transport.npz")
-
-
-def _render_save(result, directory: Path) -> None:
-    result.save(directory / "render.npz")
-
-
-def _render_load(directory: Path):
-    from mlsim.render import RenderResult
-
-    return RenderResult.load(directory / "render.npz")
-
-
 def _render_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
     from mlsim.render import output
 
@@ -431,16 +414,6 @@ def _camera_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from mlsim.render import output
 
     return output.expose(scene, inputs["render"], inputs["emission"], progress=ctx.progress)
-
-
-def _camera_save(result, directory: Path) -> None:
-    result.save(directory / "camera.npz")
-
-
-def _camera_load(directory: Path):
-    from mlsim.render.output import CameraFrames
-
-    return CameraFrames.load(directory / "camera.npz")
 
 
 def _camera_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
