@@ -181,22 +181,27 @@ def _solve_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     return run_episode(scene, mesh, reduced=reduced, progress=ctx.progress, log=ctx.log)
 
 
-def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
-    """The reduced tier's precompute, from the cache when this mesh and body were seen before (it does
-    not depend on the load, so a dataset of episodes on one sensor pays for it once)."""
+def _cached_precompute(ctx: "RunContext", stage: "Stage", payload: dict, build: Callable[[], Any], message: str):
+    """A load-independent precompute (not a stage of the plan) from the cache by the hash of
+    ``payload``, else ``build()`` and cache it: a dataset of episodes on one sensor pays once."""
     import hashlib
 
+    key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+    if ctx.cache.has(stage.name, key):
+        return ctx.cache.fetch(stage, key)
+    ctx.log(message)
+    result = build()
+    ctx.cache.store(stage, key, result)
+    return result
+
+
+def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
+    """The reduced tier's precompute, keyed on the mesh and the body (not the load)."""
     from fem.quasistatic import build_reduced
 
     payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(_BODY_FIELDS), "version": "2"}
-    key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
-    stage = _REDUCED_MODEL
-    if ctx.cache.has(stage.name, key):
-        return ctx.cache.fetch(stage, key)
-    ctx.log("[solve] reduced tier: precomputing the unit-patch responses (cached for this sensor)")
-    model = build_reduced(scene, mesh)
-    ctx.cache.store(stage, key, model)
-    return model
+    return _cached_precompute(ctx, _REDUCED_MODEL, payload, lambda: build_reduced(scene, mesh),
+                              "[solve] reduced tier: precomputing the unit-patch responses (cached for this sensor)")
 
 
 def _solve_write(episode, out_dir: Path, ctx: "RunContext") -> list[Path]:
@@ -382,20 +387,15 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
 
 
 def _cached_transport(scene: Scene, sheet, ctx: "RunContext"):
-    """The transport matrix of this sensor and view, from the cache when it was traced before."""
-    import hashlib
-
+    """The transport matrix, keyed on this sensor and view (not the load)."""
     from mlsim.render import trace_transport
 
     spec = scene.fidelity.render
     payload = {"view": scene.content_hash(_VIEW_FIELDS), "spp": spec.transport_spp, "drop": spec.transport_drop, "seed": scene.seed, "version": "1"}
-    key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
-    if ctx.cache.has(_TRANSPORT.name, key):
-        return ctx.cache.fetch(_TRANSPORT, key)
-    ctx.log(f"[render] transport tier: tracing the light-transport matrix at {spec.transport_spp} spp (cached for this sensor and view)")
-    matrix = trace_transport(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, progress=ctx.progress)
-    ctx.cache.store(_TRANSPORT, key, matrix)
-    return matrix
+    return _cached_precompute(
+        ctx, _TRANSPORT, payload,
+        lambda: trace_transport(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, progress=ctx.progress),
+        f"[render] transport tier: tracing the light-transport matrix at {spec.transport_spp} spp (cached for this sensor and view)")
 
 
 def _render_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
@@ -413,7 +413,7 @@ def _render_summary(result) -> dict:
 def _camera_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from mlsim.render import output
 
-    return output.expose(scene, inputs["render"], inputs["emission"], progress=ctx.progress)
+    return output.expose(scene, inputs["render"], inputs["emission"])
 
 
 def _camera_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:

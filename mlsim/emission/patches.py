@@ -55,27 +55,17 @@ def ml_patches(geometry, mesh, segments: int = 48, max_edge_m: float | None = 1e
             raise ValueError(f"max_edge_m = {max_edge_m}: must be > 0 (or None)")
         V, F = _retriangulate_base(geometry, V, F, max_edge_m)
         V, F = refine_to_edge_length(V, F, max_edge_m)
-    area = np.bincount(F.ravel(), weights=np.repeat(_face_areas(V, F) / 3.0, 3), minlength=len(V))
-    normals = _vertex_normals(V, F)
+    import trimesh
+
+    sheet = trimesh.Trimesh(V, F, process=False)
+    area = np.bincount(F.ravel(), weights=np.repeat(sheet.area_faces / 3.0, 3), minlength=len(V))
+    normals = np.asarray(sheet.vertex_normals, dtype=float)
     sample = V + 0.5 * geometry.ml_m * normals
     tet, _ = locate_points(mesh.points, mesh.tets, sample)
     on_base = V[:, 2] <= geometry.base_thickness_m - geometry.core_depth_m + 1e-9  # the core's top, under the layers
     _, r = geometry.radial(V)
     rod = np.where(on_base & (r > geometry.rod_radius_m - geometry.core_depth_m + 1e-9), -1, geometry.rod_of(V))
     return MLPatches(V, F, normals, area, rod, sample, tet)
-
-
-def _face_areas(V, F) -> np.ndarray:
-    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-
-
-def _vertex_normals(V, F) -> np.ndarray:
-    """Unit vertex normals: the area-weighted mean of the adjacent faces' normals."""
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # length = 2 x area
-    out = np.zeros_like(V)
-    for k in range(3):
-        np.add.at(out, F[:, k], n)
-    return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
 
 
 def refine_to_edge_length(V, F, max_edge: float, max_rounds: int = 64):

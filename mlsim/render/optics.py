@@ -54,15 +54,17 @@ class View:
 def camera_params(scene):
     """:class:`mlsim.camera.CameraParams` of a scene, with the lens focused on the base's top face and,
     when ``camera.focal_length_mm`` is unset, the focal length that fits the surface (module docstring)."""
+    from dataclasses import replace
+
     from mlsim.camera import CameraParams, focal_length_to_fit_m
 
     cam, s = scene.camera, scene.sensor
     distance_m = (cam.distance_mm + scene.optics.acrylic_thickness_mm + s.base.thickness_mm) * 1e-3
-    overrides = {"object_distance_m": distance_m}
-    if cam.focal_length_mm is None:
-        width_m = max(s.size_x_mm, s.size_y_mm * cam.width_px / cam.height_px) * 1e-3 * (1.0 + 2.0 * VIEW_MARGIN)
-        overrides["focal_length_m"] = focal_length_to_fit_m(width_m, cam.width_px, cam.binning * 1.45e-6, distance_m)
-    return CameraParams.from_scene(cam, **overrides)
+    params = CameraParams.from_scene(cam, object_distance_m=distance_m)
+    if cam.focal_length_mm is not None:
+        return params
+    width_m = max(s.size_x_mm, s.size_y_mm * cam.width_px / cam.height_px) * 1e-3 * (1.0 + 2.0 * VIEW_MARGIN)
+    return replace(params, focal_length_m=focal_length_to_fit_m(width_m, cam.width_px, params.effective_pixel_pitch_m, distance_m))
 
 
 def view_of(scene) -> View:

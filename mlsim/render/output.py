@@ -63,7 +63,7 @@ def disk_masks(height_px: int, width_px: int, centres_px, radius_px: float) -> n
     return (cols[None] - c[:, 0, None, None]) ** 2 + (rows[None] - c[:, 1, None, None]) ** 2 <= radius_px**2
 
 
-def expose(scene, render_result, emission_result, progress: bool = False) -> CameraFrames:
+def expose(scene, render_result, emission_result) -> CameraFrames:
     """The camera stage: 8-bit frames of a :class:`mlsim.render.RenderResult` (module docstring)."""
     from fem.geometry import RodArray
     from mlsim.camera import Camera
@@ -89,39 +89,34 @@ def expose(scene, render_result, emission_result, progress: bool = False) -> Cam
 
 
 # ------------------------------------------------------------------------------------------ files
-def _atomic(path: Path, write) -> Path:
-    """Write through a temporary name with the same suffix (OpenCV picks the format by it), then rename."""
-    tmp = path.with_name(f".{path.stem}.part{path.suffix}")
-    write(tmp)
-    os.replace(tmp, path)
-    return path
-
-
 def write_png(path: Path, rgb: np.ndarray) -> Path:
+    """Lossless PNG of an RGB image (H, W, 3) uint8, written atomically."""
     import cv2
 
-    def write(tmp):
-        if not cv2.imwrite(str(tmp), np.ascontiguousarray(rgb[..., ::-1])):
-            raise OSError(f"OpenCV could not write {tmp}")
+    from mlsim.pipeline import atomic_bytes
 
-    return _atomic(Path(path), write)
+    ok, data = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:
+        raise OSError(f"OpenCV could not encode {path} as PNG")
+    return atomic_bytes(Path(path), data.tobytes())
 
 
 def write_mp4(path: Path, frames: np.ndarray, fps: float) -> Path:
-    """MPEG-4 (``mp4v``) video of RGB frames (F, H, W, 3) uint8 with OpenCV."""
+    """MPEG-4 (``mp4v``) video of RGB frames (F, H, W, 3) uint8 with OpenCV, under a temporary name
+    with the same suffix (OpenCV picks the container by it), then renamed."""
     import cv2
 
+    path = Path(path)
     F, H, W, _ = frames.shape
-
-    def write(tmp):
-        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (W, H))
-        if not writer.isOpened():
-            raise OSError(f"OpenCV cannot write MPEG-4 video to {tmp} (no FFmpeg back-end?); the PNG frames are written anyway")
-        for f in range(F):
-            writer.write(np.ascontiguousarray(frames[f, :, :, ::-1]))
-        writer.release()
-
-    return _atomic(Path(path), write)
+    tmp = path.with_name(f".{path.stem}.part{path.suffix}")
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (W, H))
+    if not writer.isOpened():
+        raise OSError(f"OpenCV cannot write MPEG-4 video to {tmp} (no FFmpeg back-end?)")
+    for f in range(F):
+        writer.write(np.ascontiguousarray(frames[f, :, :, ::-1]))
+    writer.release()
+    os.replace(tmp, path)
+    return path
 
 
 def contact_sheet(frames: np.ndarray, times_s: np.ndarray, max_tiles: int = 24, columns: int = 6) -> np.ndarray:
@@ -180,14 +175,12 @@ def write_render(result, out_dir: Path) -> list[Path]:
 
     from mlsim.plots import save_png
 
+    from mlsim.pipeline import atomic_bytes
+
     out_dir = Path(out_dir)
-    npz = out_dir / "render_radiance.npz"
-
-    def write(tmp):
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, radiance_photons_s_m2_sr=result.radiance, rendered=result.rendered, tier=result.tier, spp=result.spp)
-
-    _atomic(npz, write)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, radiance_photons_s_m2_sr=result.radiance, rendered=result.rendered, tier=result.tier, spp=result.spp)
+    npz = atomic_bytes(out_dir / "render_radiance.npz", buf.getvalue())
     f = int(np.argmax(result.radiance.reshape(len(result.radiance), -1).sum(axis=1))) if result.n_frames else 0
     fig, ax = plt.subplots(figsize=(6, 5), constrained_layout=True)
     im = ax.imshow(result.radiance[f], cmap="inferno")

@@ -73,15 +73,12 @@ class TransportMatrix:
 
 
 def _barycentric(points, tri):
-    """Barycentric weights (n, 3) of points (n, 3) in triangles (n, 3, 3) (float64)."""
-    v0, v1, v2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], points - tri[:, 0]
-    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
-    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
-    den = d00 * d11 - d01 * d01
-    b1 = (d11 * d20 - d01 * d21) / den
-    b2 = (d00 * d21 - d01 * d20) / den
-    w = np.stack([1.0 - b1 - b2, b1, b2], axis=1)
-    return np.clip(w, 0.0, 1.0) / np.clip(w, 0.0, 1.0).sum(1, keepdims=True)
+    """Barycentric weights (n, 3) of points (n, 3) in triangles (n, 3, 3), clipped into the triangle
+    (a hit on an edge may land a rounding error outside)."""
+    from trimesh.triangles import points_to_barycentric
+
+    w = np.clip(points_to_barycentric(tri, points), 0.0, 1.0)
+    return w / w.sum(1, keepdims=True)
 
 
 def trace_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e-4, pass_spp: int = 16,
@@ -110,7 +107,9 @@ def trace_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e
     ctx = mi.BSDFContext()
     total = sp.csr_matrix((n_pix, N), dtype=np.float64)
     passes = [pass_spp] * (spp // pass_spp) + ([spp % pass_spp] if spp % pass_spp else [])
-    bar = _bar(len(passes), progress)
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=len(passes), desc="transport passes", unit="pass", disable=None if progress else True, leave=False)
     for k, n_s in enumerate(passes):
         n_rays = n_pix * n_s
         sampler = mi.load_dict({"type": "independent"})
@@ -168,19 +167,3 @@ def _drop_small(m: sp.csr_matrix, drop: float) -> float:
     m.data[small] = 0.0
     m.eliminate_zeros()
     return removed / total if total > 0 else 0.0
-
-
-class _NoBar:
-    def update(self, n):
-        pass
-
-    def close(self):
-        pass
-
-
-def _bar(n, progress):
-    if not progress:
-        return _NoBar()
-    from tqdm import tqdm
-
-    return tqdm(total=n, desc="transport passes", unit="pass")
