@@ -17,6 +17,10 @@ def pytest_configure(config):
 
         os.environ["MLSIM_CACHE_DIR"] = tempfile.mkdtemp(prefix="mlsim_test_cache_")
         config._mlsim_made_cache = os.environ["MLSIM_CACHE_DIR"]
+    # fTetWild gives a different mesh on every build: the suite uses the shipped ones (tests/data/ship_meshes.py)
+    import runpy
+
+    runpy.run_path(str(ROOT / "tests" / "data" / "ship_meshes.py"))["seed_cache"](Path(os.environ["MLSIM_CACHE_DIR"]))
 
 
 def pytest_unconfigure(config):
