@@ -35,7 +35,7 @@ def main() -> None:
     from mlsim.render.output import disk_masks
     from mlsim.scene import load_scene
 
-    scene = load_scene(args.scene, {"outputs": ["emission"]})
+    scene = load_scene(args.scene, {"outputs": ["emission", "solve"]})
     res = pipeline.run(scene, progress=False, log=lambda s: None)
     em, episode = res.results["emission"], res.results["solve"]
     sheet = render.sensor_scene_for(scene, em.patches)

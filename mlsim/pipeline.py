@@ -169,6 +169,7 @@ _reduced_save, _reduced_load = _npz_io("reduced.npz", "fem.quasistatic:ReducedMo
 _transport_save, _transport_load = _npz_io("transport.npz", "mlsim.render:TransportMatrix")
 _render_save, _render_load = _npz_io("render.npz", "mlsim.render:RenderResult")
 _camera_save, _camera_load = _npz_io("camera.npz", "mlsim.render.output:CameraFrames")
+_calibration_save, _calibration_load = _npz_io("calibration.npz", "mlsim.render.calibration_frame:CalibrationFrame")
 
 
 def _solve_run(scene: Scene, inputs: dict, ctx: "RunContext"):
@@ -369,6 +370,11 @@ _VIEW_FIELDS = _GEOMETRY_FIELDS + (
 )
 
 
+# What shapes the ambient lamp's image (its level over time is the camera stage's business).
+_AMBIENT_IMAGE_FIELDS = ("ambient.lamp", "ambient.power_w", "ambient.height_m", "ambient.offset_mm", "ambient.efficacy_lm_per_w",
+                         "ambient.occlusion", "optics.absorber", "optics.ml_layer_transmittance")
+
+
 def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from mlsim import render
 
@@ -376,14 +382,36 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     sheet = render.sensor_scene_for(scene, em.patches)
     radiance = render.radiance_of(em.photons_per_s, em.patches.area_m2)
     spec = scene.fidelity.render
+    transport = None
     if spec.tier == "transport":
         transport = _cached_transport(scene, sheet, ctx)
         result = render.render_frames(sheet, radiance, "transport", transport=transport)
         result.info.update(transport_spp=transport.spp, transport_nnz=int(transport.matrix.nnz),
                            transport_dropped_fraction=transport.dropped_fraction, transport_trace_s=transport.seconds)
-        return result
-    vertices = render.deformed_vertices(episode, em.patches.vertices_m)
-    return render.render_frames(sheet, radiance, "path", spp=spec.spp, seed=scene.seed, vertices_m=vertices, progress=ctx.progress)
+    else:
+        vertices = render.deformed_vertices(episode, em.patches.vertices_m)
+        result = render.render_frames(sheet, radiance, "path", spp=spec.spp, seed=scene.seed, vertices_m=vertices, progress=ctx.progress)
+    if scene.ambient.lamp != "none":
+        result.ambient, result.info["ambient"] = _ambient_image(scene, em.patches, sheet, transport)
+    return result
+
+
+def _ambient_image(scene: Scene, patches, sheet, transport):
+    """The ambient lamp's leak (mlsim.render.ambient) rendered once on the rest shape, at lamp level 1."""
+    from mlsim import render
+    from mlsim.render import ambient
+
+    a = scene.ambient
+    leak = ambient.leak_through_layers(scene, patches, sheet, lamp=a.lamp, power_w=a.power_w, lamp_m=ambient.lamp_position_m(scene),
+                                       absorber=scene.optics.absorber, efficacy_lm_per_w=a.efficacy_lm_per_w, occlusion=a.occlusion)
+    spec = scene.fidelity.render
+    image = render.render_still(sheet, render.radiance_of(leak.photons_per_s, patches.area_m2), spec.tier, spp=spec.spp,
+                                seed=scene.seed ^ 0xA3B1E7, transport=transport)
+    top = patches.normals[:, 2] > 0.99
+    info = {"radiant_power_w": leak.radiant_power_w, "shaded_fraction": leak.shaded_fraction,
+            "irradiance_on_top_w_m2": float(leak.irradiance_w_m2[top].mean()) if top.any() else 0.0,
+            "leaked_photons_per_s": float(leak.photons_per_s.sum())}
+    return image, info
 
 
 def _cached_transport(scene: Scene, sheet, ctx: "RunContext"):
@@ -408,6 +436,23 @@ def _render_summary(result) -> dict:
     from mlsim.render import output
 
     return output.render_summary(result)
+
+
+def _calibration_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from mlsim import emission, render
+    from mlsim.render.calibration_frame import calibration_frame
+
+    geometry, (mesh, _) = inputs["geometry"], inputs["mesh"]
+    patches = emission.ml_patches(geometry, mesh, scene.fidelity.mesh.segments_per_circle, scene.fidelity.render.sheet_edge_mm * 1e-3)
+    sheet = render.sensor_scene_for(scene, patches)
+    transport = _cached_transport(scene, sheet, ctx) if scene.fidelity.render.tier == "transport" else None
+    return calibration_frame(scene, patches, sheet, transport)
+
+
+def _calibration_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from mlsim.render.calibration_frame import write_calibration
+
+    return write_calibration(result, out_dir)
 
 
 def _camera_run(scene: Scene, inputs: dict, ctx: "RunContext"):
@@ -488,7 +533,7 @@ _STAGE_LIST = [
     Stage(
         name="render",
         doc="radiance of the ML light at the camera's lens per frame (Mitsuba: transport or path tier); writes radiance.npz and a PNG",
-        reads=_VIEW_FIELDS + ("fidelity.render", "seed"),
+        reads=_VIEW_FIELDS + ("fidelity.render", "seed") + _AMBIENT_IMAGE_FIELDS,
         needs=("emission", "solve"),
         run=_render_run,
         save=_render_save,
@@ -499,13 +544,24 @@ _STAGE_LIST = [
     Stage(
         name="camera",
         doc="8-bit RGB camera frames (radiometry, spectra, noise, ADC); writes an MP4, PNG frames, a contact sheet and a per-frame CSV",
-        reads=("camera", "optics", "sensor", "seed"),
+        reads=("camera", "optics", "sensor", "ambient", "seed"),
         needs=("render", "emission"),
         run=_camera_run,
         save=_camera_save,
         load=_camera_load,
         write=_camera_write,
         summarize=_camera_summary,
+    ),
+    Stage(
+        name="calibration",
+        doc="the DLLM's calibration frame: the sensor without its absorber under the white calibration lamp, auto-exposed; writes a PNG and JSON",
+        reads=_VIEW_FIELDS + ("fidelity.render", "seed", "calibration", "camera", "optics", "ambient.occlusion"),
+        needs=("geometry", "mesh"),
+        run=_calibration_run,
+        save=_calibration_save,
+        load=_calibration_load,
+        write=_calibration_write,
+        summarize=lambda result: dict(result.info),
     ),
     Stage(
         name="verify_s2",

@@ -353,6 +353,16 @@ class OpticsSpec(_Model):
     # ZnS:Cu powder is off-white, the black absorber behind it takes what passes. Not given; 0.5
     # is a middle value for a 0.5 mm phosphor-loaded silicone sheet on black (see mlsim.render).
     ml_layer_reflectance: Annotated[float, Strict(), Field(ge=0.0, le=0.99)] = 0.5
+    # Diffuse transmittance of the ML layer for light from outside (ambient leakage, the calibration
+    # frame), grey. Not given; 0.3 for 0.5 mm of phosphor-loaded silicone (with the reflectance above,
+    # 0.2 is absorbed).
+    ml_layer_transmittance: Annotated[float, Strict(), Field(ge=0.0, le=1.0)] = 0.3
+
+    @model_validator(mode="after")
+    def _energy(self):
+        if self.ml_layer_reflectance + self.ml_layer_transmittance > 1.0:
+            raise ValueError("ml_layer_reflectance + ml_layer_transmittance must be <= 1 (the rest is absorbed); lower one of them")
+        return self
 
 
 class CameraSpec(_Model):
@@ -383,11 +393,37 @@ class CameraSpec(_Model):
 
 
 class AmbientSpec(_Model):
-    """Ambient lamp above the sensor (SPEC 1.1: 50 W daylight lamps 1.5 m above)."""
+    """Ambient lamp above the sensor (SPEC 1.1: 50 W daylight lamps 1.5 m above), an isotropic point
+    source whose light leaks through the absorber and the ML layer (:mod:`mlsim.render.ambient`)."""
 
     lamp: Literal["none", "daylight", "white_led"] = "none"
-    power_w: NonNeg = 50.0
-    height_m: Pos = 1.5
+    power_w: NonNeg = 50.0  # electrical rating
+    height_m: Pos = 1.5  # above the rods' tips
+    offset_mm: tuple[float, float] = (0.0, 0.0)  # the lamp's x, y from the array's centre
+    # lm per electrical W; None: the lamp type's typical value (mlsim.render.ambient.LAMP_EFFICACY_LM_PER_W)
+    efficacy_lm_per_w: Pos | None = None
+    occlusion: Bool = True  # rods shade the surface from the lamp (traced); false: cosine law only
+    flicker_hz: NonNeg = 0.0  # light modulation: 100 (50 Hz mains) or 120 (60 Hz); 0: steady
+    flicker_depth: Annotated[float, Strict(), Field(ge=0.0, le=1.0)] = 0.3  # (max - min) / (max + min) when flickering
+    switch_on_s: Annotated[float, Strict()] | None = None  # the lamp is off before this time; None: on from the start
+    switch_off_s: Annotated[float, Strict()] | None = None  # and off from this time on; None: stays on
+
+    @model_validator(mode="after")
+    def _switching(self):
+        if self.switch_on_s is not None and self.switch_off_s is not None and self.switch_off_s <= self.switch_on_s:
+            raise ValueError(f"switch_off_s = {self.switch_off_s:g} must be after switch_on_s = {self.switch_on_s:g}")
+        return self
+
+
+class CalibrationSpec(_Model):
+    """The calibration frame (SPEC 1.1, 1.6): a copy of the sensor without the absorbing layer under a
+    40 W white LED lamp, for the DLLM's Hough circles. The lamp's height is not given; the exposure is
+    set automatically so the frame's brightest pixels reach ``target_level_dn8``."""
+
+    lamp: Literal["daylight", "white_led"] = "white_led"
+    power_w: Pos = 40.0
+    height_m: Pos = 0.5  # "held above the sensor": not given
+    target_level_dn8: Annotated[float, Strict(), Field(gt=0, lt=255)] = 200.0  # green, 99.5th percentile
 
 
 class DllmSpec(_Model):
@@ -479,6 +515,7 @@ class Scene(_Model):
     optics: OpticsSpec = OpticsSpec()
     camera: CameraSpec = CameraSpec()
     ambient: AmbientSpec = AmbientSpec()
+    calibration: CalibrationSpec = CalibrationSpec()
     dllm: DllmSpec = DllmSpec()
     fidelity: FidelitySpec = FidelitySpec()
     verify_s2: VerifyS2Spec | None = None

@@ -27,7 +27,7 @@ from mlsim.render.optics import View, camera_params, ml_channel_factors, rod_dis
 from mlsim.render.sensor_scene import SensorScene, radiance_of
 from mlsim.render.transport import TransportMatrix, trace_transport
 
-__all__ = ["RENDER_TIERS", "RenderResult", "render_frames", "sensor_scene_for", "deformed_vertices", "View", "view_of",
+__all__ = ["RENDER_TIERS", "RenderResult", "render_frames", "render_still", "sensor_scene_for", "deformed_vertices", "View", "view_of",
            "camera_params", "ml_channel_factors", "rod_disks_px", "SensorScene", "radiance_of", "TransportMatrix",
            "trace_transport"]
 
@@ -46,21 +46,26 @@ class RenderResult:
     tier: str
     spp: int
     info: dict = field(default_factory=dict)
+    #: (H, W) radiance of the ambient lamp's light leaking into the core at lamp level 1 (photons of
+    #: its own spectrum, :mod:`mlsim.render.ambient`); None without a lamp.
+    ambient: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
         return len(self.radiance)
 
     def save(self, path) -> None:
+        extra = {} if self.ambient is None else {"ambient": self.ambient}
         np.savez(path, radiance=self.radiance, rendered=self.rendered, frame_seconds=self.frame_seconds,
-                 tier=self.tier, spp=self.spp, info=np.array(repr(self.info)))
+                 tier=self.tier, spp=self.spp, info=np.array(repr(self.info)), **extra)
 
     @classmethod
     def load(cls, path) -> "RenderResult":
         import ast
 
         z = np.load(path)
-        return cls(z["radiance"], z["rendered"], z["frame_seconds"], str(z["tier"]), int(z["spp"]), ast.literal_eval(str(z["info"])))
+        return cls(z["radiance"], z["rendered"], z["frame_seconds"], str(z["tier"]), int(z["spp"]), ast.literal_eval(str(z["info"])),
+                   z["ambient"] if "ambient" in z.files else None)
 
 
 def sensor_scene_for(scene, patches) -> SensorScene:
@@ -143,6 +148,17 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
     for f in np.flatnonzero(same):  # in order, so a run of repeats copies its first frame
         out[f] = out[f - 1]
     return RenderResult(out, rendered, seconds, tier, int(spp if tier == "path" else (transport.spp if transport else 0)))
+
+
+def render_still(sensor_scene: SensorScene, vertex_radiance, tier: str = "transport", *, spp: int = 16, seed: int = 0,
+                 transport: TransportMatrix | None = None) -> np.ndarray:
+    """One image (H, W) of per-vertex radiance (N,) on the sheet at rest (the ambient leak, the
+    calibration frame): a product with the transport matrix, or a path-traced render at ``spp``."""
+    e = np.asarray(vertex_radiance, dtype=np.float32)[None]
+    if tier == "transport":
+        return render_frames(sensor_scene, e, "transport", transport=transport).radiance[0]
+    sensor_scene.set_vertices(sensor_scene.rest_vertices_m)
+    return render_frames(sensor_scene, e, "path", spp=spp, seed=seed).radiance[0]
 
 
 def _frame_seed(seed: int, frame: int) -> int:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["View", "view_of", "camera_params", "ml_channel_factors", "rod_disks_px", "VIEW_MARGIN"]
+__all__ = ["View", "view_of", "camera_params", "ml_channel_factors", "channel_factors_of", "rod_disks_px", "VIEW_MARGIN"]
 
 #: Fraction of the surface's width added on each side of the default field of view.
 VIEW_MARGIN = 0.05
@@ -80,15 +80,23 @@ def view_of(scene) -> View:
 
 
 def ml_channel_factors(scene) -> np.ndarray:
-    """(3,) electrons per ZnS:Cu photon reaching the pixel, R, G, B: emission band x internal
-    transmittance of the acrylic and of the clear core (half a rod plus the base below the layers,
-    the mean path) x camera QE (``camera.sensitivity``)."""
+    """(3,) electrons per ZnS:Cu photon reaching the pixel, R, G, B (:func:`channel_factors_of`)."""
+    from mlsim import spectra
+
+    return channel_factors_of(scene, spectra.zns_cu_emission_sd())
+
+
+def channel_factors_of(scene, photon_sd) -> np.ndarray:
+    """(3,) electrons per photon of spectrum ``photon_sd`` (shape) leaving the ML layer's inner face
+    and reaching the pixel, R, G, B: spectrum x internal transmittance of the acrylic and of the
+    clear core (half a rod plus the base below the layers, the mean path) x camera QE
+    (``camera.sensitivity``)."""
     from mlsim import spectra
 
     s = scene.sensor
     core_path_mm = s.base.thickness_mm - s.layers.absorber_mm - s.layers.ml_mm + 0.5 * s.rod.height_mm
     return spectra.channel_factors(
-        spectra.zns_cu_emission_sd(),
+        photon_sd,
         (spectra.acrylic_transmittance_sd(scene.optics.acrylic_thickness_mm, fresnel_surfaces=0),
          spectra.elastomer_transmittance_sd(max(core_path_mm, 0.0))),
         spectra.camera_sensitivity_msds(scene.camera.sensitivity),

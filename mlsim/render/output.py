@@ -27,7 +27,9 @@ __all__ = ["CameraFrames", "expose", "write_camera", "write_render", "render_sum
 class CameraFrames:
     """frames (F, H, W, 3) uint8 RGB; windows_s (F, 2) exposure windows; rendered (F,) bool;
     rod_photons (F, R) photons emitted per rod in each exposure; rod_signal_e (F, R) mean noiseless
-    signal electrons per pixel (R + G + B) in each rod's disk; fps."""
+    signal electrons per pixel (R + G + B) in each rod's disk from the ML light, rod_ambient_e (F, R)
+    the same from the ambient lamp's leak (zeros without a lamp); lamp_level (F,) the lamp's mean
+    relative power in each exposure; fps."""
 
     frames: np.ndarray
     windows_s: np.ndarray
@@ -35,24 +37,38 @@ class CameraFrames:
     rod_photons: np.ndarray
     rod_signal_e: np.ndarray
     fps: float
+    rod_ambient_e: np.ndarray | None = None
+    lamp_level: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.rod_ambient_e is None:
+            self.rod_ambient_e = np.zeros_like(self.rod_signal_e)
+        if self.lamp_level is None:
+            self.lamp_level = np.zeros(len(self.frames))
 
     def save(self, path) -> None:
         np.savez(path, frames=self.frames, windows_s=self.windows_s, rendered=self.rendered, rod_photons=self.rod_photons,
-                 rod_signal_e=self.rod_signal_e, fps=self.fps)
+                 rod_signal_e=self.rod_signal_e, fps=self.fps, rod_ambient_e=self.rod_ambient_e, lamp_level=self.lamp_level)
 
     @classmethod
     def load(cls, path) -> "CameraFrames":
         z = np.load(path)
-        return cls(z["frames"], z["windows_s"], z["rendered"], z["rod_photons"], z["rod_signal_e"], float(z["fps"]))
+        return cls(z["frames"], z["windows_s"], z["rendered"], z["rod_photons"], z["rod_signal_e"], float(z["fps"]),
+                   z["rod_ambient_e"], z["lamp_level"])
 
     def summary(self) -> dict:
         f = self.frames.astype(np.float64)
+        peak_ml = float(self.rod_signal_e.max()) if self.rod_signal_e.size else 0.0
+        peak_ambient = float(self.rod_ambient_e.max()) if self.rod_ambient_e.size else 0.0
         return {
             "n_frames": int(len(f)),
             "rendered_frames": int(self.rendered.sum()),
             "max_dn": [int(self.frames[..., c].max()) for c in range(3)],
             "mean_dn_per_frame": [round(float(v), 3) for v in f.mean(axis=(1, 2, 3))],
-            "peak_rod_signal_e": float(self.rod_signal_e.max()) if self.rod_signal_e.size else 0.0,
+            "peak_rod_signal_e": peak_ml,
+            "peak_rod_ambient_e": peak_ambient,
+            # the brightest rod's ambient signal over the brightest rod's ML signal (ISSUE 4: ambient vs a press)
+            "ambient_to_ml_peak": peak_ambient / peak_ml if peak_ml > 0 else None,
         }
 
 
@@ -64,7 +80,8 @@ def disk_masks(height_px: int, width_px: int, centres_px, radius_px: float) -> n
 
 
 def expose(scene, render_result, emission_result) -> CameraFrames:
-    """The camera stage: 8-bit frames of a :class:`mlsim.render.RenderResult` (module docstring)."""
+    """The camera stage: 8-bit frames of a :class:`mlsim.render.RenderResult` (module docstring),
+    with the ambient lamp's leak (``render_result.ambient``) at its level in each exposure."""
     from fem.geometry import RodArray
     from mlsim.camera import Camera
     from mlsim.render.optics import camera_params, ml_channel_factors, rod_disks_px
@@ -75,17 +92,38 @@ def expose(scene, render_result, emission_result) -> CameraFrames:
     rng = np.random.default_rng([scene.seed, 0xCA3E7A])  # the camera's own stream
     rad = render_result.radiance
     F, H, W = rad.shape
+    windows = emission_result.windows_s
+    ambient, level, k_amb = _ambient_terms(scene, render_result, windows)
     frames = np.empty((F, H, W, 3), np.uint8)
     for f in range(F):
-        frames[f] = camera(rad[f][..., None] * k, rng, noise=scene.camera.noise)
+        channels = rad[f][..., None] * k
+        if ambient is not None and level[f] > 0:
+            channels += (level[f] * ambient)[..., None] * k_amb
+        frames[f] = camera(channels, rng, noise=scene.camera.noise)
     g = RodArray.from_sensor(scene.sensor)
-    windows = emission_result.windows_s
     rod_photons = emission_result.per_rod(g.n_rods)[:, : g.n_rods] * (windows[:, 1] - windows[:, 0])[:, None]
     centres, radius = rod_disks_px(scene)
     masks = disk_masks(H, W, centres, radius).reshape(g.n_rods, -1).astype(np.float32)
-    per_pixel_e = rad.reshape(F, -1) * (float(k.sum()) * params.electrons_per_radiance_m2_sr_s)
-    rod_signal_e = (per_pixel_e @ masks.T) / masks.sum(axis=1)[None]
-    return CameraFrames(frames, windows, render_result.rendered.copy(), rod_photons, rod_signal_e, params.fps)
+    per_radiance_e = params.electrons_per_radiance_m2_sr_s / masks.sum(axis=1)[None]
+    rod_signal_e = (rad.reshape(F, -1) @ masks.T) * (float(k.sum()) * per_radiance_e)
+    rod_ambient_e = np.zeros_like(rod_signal_e)
+    if ambient is not None:
+        rod_ambient_e = level[:, None] * ((ambient.reshape(1, -1) @ masks.T) * (float(k_amb.sum()) * per_radiance_e))
+    return CameraFrames(frames, windows, render_result.rendered.copy(), rod_photons, rod_signal_e, params.fps, rod_ambient_e, level)
+
+
+def _ambient_terms(scene, render_result, windows_s):
+    """(ambient image (H, W) or None, lamp level per frame (F,), channel factors of the leak (3,))."""
+    from mlsim.render import ambient
+    from mlsim.render.optics import channel_factors_of
+
+    a = scene.ambient
+    level = np.zeros(len(windows_s))
+    if render_result.ambient is None or a.lamp == "none":
+        return None, level, np.zeros(3, np.float32)
+    level = ambient.lamp_level(windows_s, a.flicker_hz, a.flicker_depth, a.switch_on_s, a.switch_off_s)
+    sd = ambient.leaked_photon_sd(a.lamp, scene.optics.absorber, scene.sensor.layers.absorber_mm)
+    return render_result.ambient.astype(np.float32), level, channel_factors_of(scene, sd).astype(np.float32)
 
 
 # ------------------------------------------------------------------------------------------ files
@@ -159,6 +197,10 @@ def write_camera(result: CameraFrames, out_dir: Path) -> list[Path]:
         cols[f"rod{r}_photons"] = result.rod_photons[:, r]
     for r in range(result.rod_signal_e.shape[1]):
         cols[f"rod{r}_signal_e"] = result.rod_signal_e[:, r]
+    if np.any(result.lamp_level > 0):
+        cols["lamp_level"] = result.lamp_level
+        for r in range(result.rod_ambient_e.shape[1]):
+            cols[f"rod{r}_ambient_e"] = result.rod_ambient_e[:, r]
     buf = io.StringIO()
     buf.write(",".join(cols) + "\n")
     np.savetxt(buf, np.column_stack(list(cols.values())), delimiter=",", fmt="%.9g")
