@@ -27,6 +27,8 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_tiers.py
 	$(PY) benchmarks/bench_camera.py
 	$(PY) benchmarks/bench_render.py
+	$(PY) benchmarks/bench_spectral.py
+	$(PY) benchmarks/ambient_study.py
 
 venv: $(STAMP)
 

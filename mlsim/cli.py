@@ -159,10 +159,12 @@ def cmd_mesh(args) -> int:
 def cmd_accuracy(args) -> int:
     from mlsim.accuracy import ERRORS, solve_accuracy
 
-    if args.stage != "solve":
-        raise SceneError([Problem("--stage", args.stage, "only the solve stage has an accuracy study so far; use --stage solve")])
+    if args.stage not in ("solve", "render"):
+        raise SceneError([Problem("--stage", args.stage, "the accuracy studies are of the solve and the render stages; use --stage solve or render")])
     scene = _load(args)
     out_dir = Path(args.out) if args.out else Path("out") / f"{scene.name}_accuracy"
+    if args.stage == "render":
+        return _render_accuracy(args, scene, out_dir)
     reference = None
     if args.reference:
         parts = args.reference.split(",")
@@ -181,6 +183,23 @@ def cmd_accuracy(args) -> int:
         print(f"{r.edge_length_mm:>8g} {r.element_order:>5} {r.tier:>9} {r.n_tets:>7} {r.per_frame_ms:>9.1f} {r.precompute_s:>7.1f} {errs}"
               + ("   (reference)" if r.reference else ""))
     print(f"(* = on the Pareto front)  wrote {out_dir / 'accuracy_solve.csv'}, .json, .png")
+    return EXIT_OK
+
+
+def _render_accuracy(args, scene, out_dir: Path) -> int:
+    from mlsim.render.accuracy import RENDER_ERRORS, render_accuracy
+
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    rows, info = render_accuracy(scene, tuple(args.spp), tuple(args.transport_spp), args.reference_spp, args.frames,
+                                 not args.no_spectral, out_dir, _cache(args), progress=not args.quiet, log=log)
+    print(f"reference: spectral path tracing at {info['reference_spp']} spp on frames {info['frames']} "
+          f"({info['reference_ms_per_frame'] / 1e3:.1f} s per frame); its own noise: "
+          + ", ".join(f"{e} {info['reference_noise_' + e]:.2e}" for e in RENDER_ERRORS))
+    print(f"{'tier':>9} {'spp':>5} {'spectral':>8} {'ms/frame':>10} {'pre s':>7} " + " ".join(f"{e:>15}" for e in RENDER_ERRORS))
+    for r in rows:
+        errs = " ".join(f"{r.errors[e]:>14.3e}{'*' if r.errors[e + '_pareto'] else ' '}" for e in RENDER_ERRORS)
+        print(f"{r.tier:>9} {r.spp:>5} {str(r.spectral):>8} {r.per_frame_ms:>10.2f} {r.precompute_s:>7.1f} {errs}")
+    print(f"(* = on the Pareto front)  wrote {out_dir / 'accuracy_render.csv'}, .json, .png")
     return EXIT_OK
 
 
@@ -214,11 +233,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("accuracy", help="error against run time of a stage's fidelity knobs (table, CSV, log-log plot)")
     common(p)
-    p.add_argument("--stage", default="solve", help="the stage to study (solve)")
+    p.add_argument("--stage", default="solve", choices=["solve", "render"], help="the stage to study")
     p.add_argument("--edges", type=float, nargs="+", default=[2.5, 2.0, 1.5], metavar="MM", help="mesh edge lengths")
     p.add_argument("--orders", type=int, nargs="+", default=[1, 2], choices=[1, 2], help="element orders")
     p.add_argument("--tiers", nargs="+", default=["reduced", "linear", "nonlinear"], choices=["reduced", "linear", "nonlinear"])
     p.add_argument("--reference", help="EDGE_MM,ORDER,TIER (default: the finest edge, order 2, nonlinear)")
+    p.add_argument("--spp", type=int, nargs="+", default=[1, 4, 16, 64], help="render: path tier samples per pixel")
+    p.add_argument("--transport-spp", type=int, nargs="+", default=[16, 64], help="render: transport tier trace samples per pixel")
+    p.add_argument("--reference-spp", type=int, default=256, help="render: the spectral reference's samples per pixel")
+    p.add_argument("--frames", type=int, default=4, help="render: how many glowing frames (evenly spread) are compared")
+    p.add_argument("--no-spectral", action="store_true", help="render: skip the path tier's spectral renders")
     p.add_argument("--out", help="output directory (default out/<scene name>_accuracy)")
     p.add_argument("--cache", help="cache directory")
     p.set_defaults(func=cmd_accuracy)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["View", "view_of", "camera_params", "ml_channel_factors", "channel_factors_of", "rod_disks_px", "VIEW_MARGIN"]
+__all__ = ["View", "view_of", "camera_params", "ml_channel_factors", "channel_factors_of", "inner_path_transmittance_sds", "rod_disks_px", "VIEW_MARGIN"]
 
 #: Fraction of the surface's width added on each side of the default field of view.
 VIEW_MARGIN = 0.05
@@ -93,14 +93,19 @@ def channel_factors_of(scene, photon_sd) -> np.ndarray:
     (``camera.sensitivity``)."""
     from mlsim import spectra
 
+    return spectra.channel_factors(photon_sd, inner_path_transmittance_sds(scene), spectra.camera_sensitivity_msds(scene.camera.sensitivity))
+
+
+def inner_path_transmittance_sds(scene) -> tuple:
+    """The internal transmittances between the ML layer and the lens: the acrylic plate and the
+    clear core over its mean path (half a rod plus the base below the layers). Fresnel losses are
+    not in them: the renderer traces those."""
+    from mlsim import spectra
+
     s = scene.sensor
     core_path_mm = s.base.thickness_mm - s.layers.absorber_mm - s.layers.ml_mm + 0.5 * s.rod.height_mm
-    return spectra.channel_factors(
-        photon_sd,
-        (spectra.acrylic_transmittance_sd(scene.optics.acrylic_thickness_mm, fresnel_surfaces=0),
-         spectra.elastomer_transmittance_sd(max(core_path_mm, 0.0))),
-        spectra.camera_sensitivity_msds(scene.camera.sensitivity),
-    )
+    return (spectra.acrylic_transmittance_sd(scene.optics.acrylic_thickness_mm, fresnel_surfaces=0),
+            spectra.elastomer_transmittance_sd(max(core_path_mm, 0.0)))
 
 
 def rod_disks_px(scene) -> tuple[np.ndarray, float]:

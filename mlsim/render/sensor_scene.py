@@ -24,29 +24,40 @@ material, see the spectral shortcut in :mod:`mlsim.render.optics`).
 
 Variant: ``llvm_ad_mono`` (the CPU JIT variants need libLLVM 17+, the scalar variants crash with
 a ``mesh_attribute`` emitter). The renders are mono: the spectrum is applied afterwards.
+
+Spectral reference (``spectra=``, a :class:`mlsim.render.spectral.RenderSpectra`): the same scene in
+``llvm_ad_spectral``, the sheet's radiance the emission spectrum times the per-vertex value and the
+film a ``specfilm`` whose channels are the path's sensitivities, so that :meth:`SensorScene.render`
+gives per-channel images directly (see :mod:`mlsim.render.spectral`). Mitsuba's variant is global
+and its objects belong to the variant they were built in: every method sets its scene's variant
+first, so mono and spectral scenes can be used in turn in one process.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["VARIANT", "use_variant", "SensorScene", "radiance_of"]
+__all__ = ["VARIANT", "SPECTRAL_VARIANT", "use_variant", "SensorScene", "radiance_of"]
 
 VARIANT = "llvm_ad_mono"
+SPECTRAL_VARIANT = "llvm_ad_spectral"  # the spectral reference (mlsim.render.spectral)
 
 
-def use_variant():
-    """Import Mitsuba in the renderer's variant; a clear error when the JIT back-end is missing."""
+def use_variant(variant: str = VARIANT):
+    """Import Mitsuba in ``variant`` (default the renderer's, mono); a clear error when the JIT
+    back-end is missing."""
+    if variant not in (VARIANT, SPECTRAL_VARIANT):
+        raise ValueError(f'Mitsuba variant "{variant}": choose one of {VARIANT}, {SPECTRAL_VARIANT}')
     try:
         import mitsuba as mi
     except ImportError as exc:  # pragma: no cover - an install problem
         raise ImportError(f"mitsuba is not installed ({exc}); run `make venv`") from None
-    if mi.variant() != VARIANT:
+    if mi.variant() != variant:
         try:
-            mi.set_variant(VARIANT)
+            mi.set_variant(variant)
         except Exception as exc:  # pragma: no cover - a machine problem
             raise RuntimeError(
-                f"Mitsuba variant {VARIANT} failed to start ({exc}). It needs libLLVM 17 or newer: "
+                f"Mitsuba variant {variant} failed to start ({exc}). It needs libLLVM 17 or newer: "
                 "`apt-get install -y libllvm19`, or set DRJIT_LIBLLVM_PATH to a libLLVM.so (17+)"
             ) from None
     return mi
@@ -65,12 +76,25 @@ class SensorScene:
     :func:`fem.geometry.emitting_surface` gives them; turned here); ``view``: a
     :class:`mlsim.render.optics.View`. Emission and vertex positions change in place
     (:meth:`set_radiance`, :meth:`set_vertices`) without recompiling anything.
+
+    ``spectra`` (a :class:`mlsim.render.spectral.RenderSpectra`, optional): build the scene in
+    ``llvm_ad_spectral`` with the emitter radiance spectrum(lambda) x per-vertex value and a film of
+    one channel per sensitivity curve; :meth:`render` then returns (H, W, C). ``options`` holds the
+    keyword settings the scene was built with (:func:`mlsim.render.spectral.spectral_twin` reuses them).
     """
 
     def __init__(self, sheet_vertices_m, sheet_faces, view, *, core_ior: float = 1.41, acrylic_ior: float = 1.49,
                  acrylic_thickness_m: float = 3e-3, base_half_size_m: float | None = None, reflectance: float = 0.5,
-                 max_depth: int = 12, rr_depth: int = 5):
-        mi = use_variant()
+                 max_depth: int = 12, rr_depth: int = 5, spectra=None):
+        if spectra is not None:
+            from mlsim.render.spectral import RenderSpectra
+
+            if not isinstance(spectra, RenderSpectra):
+                raise TypeError(f"spectra is a {type(spectra).__name__}: must be a mlsim.render.spectral.RenderSpectra "
+                                "(see mlsim.render.spectral.ml_render_spectra)")
+        self.variant = VARIANT if spectra is None else SPECTRAL_VARIANT
+        self.spectra = spectra
+        mi = use_variant(self.variant)
         V = np.asarray(sheet_vertices_m, dtype=float)
         F = np.asarray(sheet_faces)
         if V.ndim != 2 or V.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
@@ -82,10 +106,23 @@ class SensorScene:
         self.view = view
         self.n_vertices = len(V)
         self.faces = F[:, ::-1].astype(np.uint32)  # normals into the core: the emitter's front side
-        half_mm = 1e3 * (base_half_size_m if base_half_size_m is not None else max(np.abs(V[:, :2]).max(), 1e-4))
+        half_m = base_half_size_m if base_half_size_m is not None else max(np.abs(V[:, :2]).max(), 1e-4)
+        half_mm = 1e3 * half_m
+        self.options = {"core_ior": float(core_ior), "acrylic_ior": float(acrylic_ior), "acrylic_thickness_m": float(acrylic_thickness_m),
+                        "base_half_size_m": float(half_m), "reflectance": float(reflectance), "max_depth": int(max_depth),
+                        "rr_depth": int(rr_depth)}
         props = mi.Properties()
         props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "spectrum", "value": float(reflectance)}})
-        props["emitter"] = mi.load_dict({"type": "area", "radiance": {"type": "mesh_attribute", "name": "vertex_emission"}})
+        if spectra is None:
+            radiance = {"type": "mesh_attribute", "name": "vertex_emission"}
+            film = {"type": "hdrfilm", "width": int(view.width_px), "height": int(view.height_px), "rfilter": {"type": "box"},
+                    "pixel_format": "luminance"}
+        else:
+            from mlsim.render import spectral
+
+            radiance = spectral.radiance_texture(spectra, "vertex_emission")
+            film = spectral.film_dict(spectra, int(view.width_px), int(view.height_px))
+        props["emitter"] = mi.load_dict({"type": "area", "radiance": radiance})
         self._mesh = mi.Mesh("ml_sheet", len(V), len(F), props=props, has_vertex_normals=False)
         self._params = mi.traverse(self._mesh)
         self._params["faces"] = mi.UInt32(self.faces.ravel())
@@ -114,8 +151,7 @@ class SensorScene:
                 "near_clip": 1e-2,
                 "far_clip": 1e4,
                 "to_world": mi.ScalarTransform4f().look_at(origin=[0.0, 0.0, -lens_mm], target=[0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0]),
-                "film": {"type": "hdrfilm", "width": int(view.width_px), "height": int(view.height_px),
-                         "rfilter": {"type": "box"}, "pixel_format": "luminance"},
+                "film": film,
                 "sampler": {"type": "independent", "sample_count": 1},
             },
             "sheet": self._mesh,
@@ -126,8 +162,9 @@ class SensorScene:
 
     # -- the two things that change per frame ----------------------------------------------------
     def set_radiance(self, radiance) -> None:
-        """Per-vertex radiance (N,), photons s^-1 m^-2 sr^-1 (see :func:`radiance_of`)."""
-        mi = use_variant()
+        """Per-vertex radiance (N,), photons s^-1 m^-2 sr^-1 (see :func:`radiance_of`); in a spectral
+        scene the spectral radiance is this times the emission spectrum (1/nm, unit integral)."""
+        mi = use_variant(self.variant)
         r = np.asarray(radiance, dtype=np.float32)
         if r.shape != (self.n_vertices,):
             raise ValueError(f"radiance of shape {r.shape}: must be ({self.n_vertices},), one value per sheet vertex")
@@ -138,7 +175,7 @@ class SensorScene:
 
     def set_vertices(self, vertices_m) -> None:
         """Move the sheet's vertices (N, 3) m (the deformed ML layer; the BVH is rebuilt)."""
-        mi = use_variant()
+        mi = use_variant(self.variant)
         v = (np.asarray(vertices_m, dtype=float) * 1e3).astype(np.float32)
         if v.shape != (self.n_vertices, 3) or not np.all(np.isfinite(v)):
             raise ValueError(f"vertices of shape {v.shape}: must be finite, ({self.n_vertices}, 3)")
@@ -151,7 +188,10 @@ class SensorScene:
         scene_params.update()
 
     def render(self, spp: int, seed: int) -> np.ndarray:
-        """Radiance image (H, W) float32 with the current emission: Mitsuba's ``path`` integrator."""
-        mi = use_variant()
-        img = mi.render(self.scene, spp=int(spp), seed=int(seed) & 0xFFFFFFFF)
-        return np.array(img, dtype=np.float32)[:, :, 0]
+        """Radiance image (H, W) float32 with the current emission: Mitsuba's ``path`` integrator.
+
+        A spectral scene gives (H, W, C): per channel c, the integral over wavelength of the spectral
+        radiance at the lens times the channel's sensitivity (:mod:`mlsim.render.spectral`)."""
+        mi = use_variant(self.variant)
+        img = np.array(mi.render(self.scene, spp=int(spp), seed=int(seed) & 0xFFFFFFFF), dtype=np.float32)
+        return img[:, :, 0] if self.spectra is None else img

@@ -90,6 +90,9 @@ def trace_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e
     """
     from mlsim.render.sensor_scene import use_variant
 
+    if getattr(sensor_scene, "spectra", None) is not None:
+        raise ValueError("trace_transport needs a mono SensorScene (the spectral shortcut applies the spectra afterwards); "
+                         "build the scene without spectra=")
     mi = use_variant()
     import drjit as dr
 
@@ -113,7 +116,7 @@ def trace_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e
     for k, n_s in enumerate(passes):
         n_rays = n_pix * n_s
         sampler = mi.load_dict({"type": "independent"})
-        sampler.seed(int(seed) * 1000003 + k, n_rays)
+        sampler.seed((int(seed) * 1000003 + k) & 0xFFFFFFFF, n_rays)  # 32 bits: the scene seed may be up to 2**63
         idx = dr.arange(mi.UInt32, n_rays)
         pixel = idx // n_s
         pos = mi.Point2f((mi.Float(pixel % W) + sampler.next_1d()) / W, (mi.Float(pixel // W) + sampler.next_1d()) / H)

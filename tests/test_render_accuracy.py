@@ -1,0 +1,47 @@
+"""`mlsim accuracy --stage render`: the path tier's error against the spectral reference falls as
+spp^-1/2 (Monte Carlo), the files are written, and the CLI prints the table."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mitsuba")
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _scene():
+    from mlsim.scene import load_scene
+
+    return load_scene(ROOT / "scenes" / "mavig_tiny.toml", {"camera.width_px": 40, "camera.height_px": 40})
+
+
+def test_path_error_falls_at_the_monte_carlo_rate(tmp_path, cache):
+    from mlsim.render.accuracy import render_accuracy
+
+    spps = (2, 8, 32)
+    rows, info = render_accuracy(_scene(), spps=spps, transport_spps=(32,), reference_spp=1024, frames=2, spectral=True,
+                                 out_dir=tmp_path, cache=cache, progress=False, log=lambda m: None)
+    assert info["reference_noise_image"] < 0.2 * min(r.errors["image"] for r in rows)
+    for spectral in (False, True):
+        err = np.array([r.errors["image"] for r in rows if r.tier == "path" and r.spectral == spectral])
+        slope = np.polyfit(np.log(spps), np.log(err), 1)[0]
+        assert -0.65 < slope < -0.35, (spectral, err, slope)
+    transport = [r for r in rows if r.tier == "transport"][0]
+    # (its error here is the rest-shape assumption on a slide; tests/test_render.py checks it at rest)
+    assert transport.precompute_s > 0 and transport.per_frame_ms < min(r.per_frame_ms for r in rows if r.tier == "path")
+    table = list(csv.DictReader(open(tmp_path / "accuracy_render.csv")))
+    assert len(table) == 2 * len(spps) + 1
+    assert (tmp_path / "accuracy_render.png").stat().st_size > 10_000
+    assert any(r["pareto_image"] == "True" for r in table)
+
+
+def test_cli_refuses_an_unknown_stage(capsys):
+    from mlsim.cli import main
+
+    assert main(["accuracy", str(ROOT / "scenes" / "mavig_tiny.toml"), "--stage", "camera"]) == 2
+    assert "invalid choice: 'camera' (choose from 'solve', 'render')" in capsys.readouterr().err
