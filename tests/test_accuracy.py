@@ -81,5 +81,5 @@ def test_study_errors_and_outputs(study):
 
 
 def test_cli_refuses_an_unknown_stage_by_name(capsys):
-    assert main(["accuracy", str(TINY), "--stage", "render"]) == 2
-    assert "--stage" in capsys.readouterr().err
+    assert main(["accuracy", str(TINY), "--stage", "camera"]) == 2
+    assert "invalid choice: 'camera' (choose from 'solve', 'render')" in capsys.readouterr().err

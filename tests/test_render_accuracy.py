@@ -1,5 +1,5 @@
 """`mlsim accuracy --stage render`: the path tier's error against the spectral reference falls as
-spp^-1/2 (Monte Carlo), the files are written, and the CLI prints the table."""
+spp^-1/2 (Monte Carlo), and the files are written (an unknown --stage: tests/test_accuracy.py)."""
 
 from __future__ import annotations
 
@@ -38,10 +38,3 @@ def test_path_error_falls_at_the_monte_carlo_rate(tmp_path, cache):
     assert len(table) == 2 * len(spps) + 1
     assert (tmp_path / "accuracy_render.png").stat().st_size > 10_000
     assert any(r["pareto_image"] == "True" for r in table)
-
-
-def test_cli_refuses_an_unknown_stage(capsys):
-    from mlsim.cli import main
-
-    assert main(["accuracy", str(ROOT / "scenes" / "mavig_tiny.toml"), "--stage", "camera"]) == 2
-    assert "invalid choice: 'camera' (choose from 'solve', 'render')" in capsys.readouterr().err
