@@ -195,10 +195,10 @@ def _render_accuracy(args, scene, out_dir: Path) -> int:
     print(f"reference: spectral path tracing at {info['reference_spp']} spp on frames {info['frames']} "
           f"({info['reference_ms_per_frame'] / 1e3:.1f} s per frame); its own noise: "
           + ", ".join(f"{e} {info['reference_noise_' + e]:.2e}" for e in RENDER_ERRORS))
-    print(f"{'tier':>9} {'spp':>5} {'spectral':>8} {'ms/frame':>10} {'pre s':>7} " + " ".join(f"{e:>15}" for e in RENDER_ERRORS))
+    print(f"{'tier':>14} {'spp':>5} {'spectral':>8} {'ms/frame':>10} {'pre s':>7} " + " ".join(f"{e:>15}" for e in RENDER_ERRORS))
     for r in rows:
         errs = " ".join(f"{r.errors[e]:>14.3e}{'*' if r.errors[e + '_pareto'] else ' '}" for e in RENDER_ERRORS)
-        print(f"{r.tier:>9} {r.spp:>5} {str(r.spectral):>8} {r.per_frame_ms:>10.2f} {r.precompute_s:>7.1f} {errs}")
+        print(f"{r.tier:>14} {r.spp:>5} {str(r.spectral):>8} {r.per_frame_ms:>10.2f} {r.precompute_s:>7.1f} {errs}")
     print(f"(* = on the Pareto front)  wrote {out_dir / 'accuracy_render.csv'}, .json, .png")
     return EXIT_OK
 

@@ -370,8 +370,8 @@ _VIEW_FIELDS = _GEOMETRY_FIELDS + (
 )
 
 
-#: Above this sheet displacement (mm) the transport tier's run says that it ignores the deformation:
-#: on the default demo, frames under 0.8 mm stayed within 3 % per rod, frames over it did not.
+#: Pure transport (``transport_max_displacement_mm`` unset): above this sheet displacement (mm) the
+#: run says that the matrix ignores the deformation.
 TRANSPORT_DEFORMATION_WARN_MM = 0.5
 
 # What shapes the ambient lamp's image (its level over time is the camera stage's business).
@@ -387,23 +387,26 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     radiance = render.radiance_of(em.photons_per_s, em.patches.area_m2)
     spec = scene.fidelity.render
     transport = None
+    vertices = render.deformed_vertices(episode, em.patches.vertices_m)
     if spec.tier == "transport":
         transport = _cached_transport(scene, sheet, ctx)
-        result = render.render_frames(sheet, radiance, "transport", transport=transport)
-        result.info.update(transport_spp=transport.spp, transport_nnz=int(transport.matrix.nnz),
-                           transport_dropped_fraction=transport.dropped_fraction, transport_trace_s=transport.seconds)
-        # The matrix is of the rest shape: say how far the sheet really moved, frame by frame.
+        limit_mm = spec.transport_max_displacement_mm
+        result = render.render_frames(sheet, radiance, "transport", transport=transport, spp=spec.spp, seed=scene.seed, vertices_m=vertices,
+                                      path_above_m=None if limit_mm is None else limit_mm * 1e-3, progress=ctx.progress)
         import numpy as np
 
-        moved_mm = np.linalg.norm(render.deformed_vertices(episode, em.patches.vertices_m) - em.patches.vertices_m[None], axis=2).max(axis=1) * 1e3
-        result.info["sheet_displacement_mm"] = [round(float(d), 4) for d in moved_mm]
-        if moved_mm.max() > TRANSPORT_DEFORMATION_WARN_MM:
+        moved_mm = np.linalg.norm(vertices - em.patches.vertices_m[None], axis=2).max(axis=1) * 1e3
+        result.info.update(transport_spp=transport.spp, transport_nnz=int(transport.matrix.nnz),
+                           transport_dropped_fraction=transport.dropped_fraction, transport_trace_s=transport.seconds,
+                           sheet_displacement_mm=[round(float(d), 4) for d in moved_mm])
+        if result.info["path_frames"]:
+            ctx.log(f"[render] {len(result.info['path_frames'])} frames in which the sheet moved more than {limit_mm:g} mm were path-traced "
+                    f"at {spec.spp} spp (the matrix is of the rest shape; fidelity.render.transport_max_displacement_mm)")
+        elif limit_mm is None and moved_mm.max() > TRANSPORT_DEFORMATION_WARN_MM:
             f = int(np.argmax(moved_mm))
             ctx.log(f"[render] note: the transport tier renders the rest shape; the sheet moves up to {moved_mm[f]:.2f} mm (frame {f}), "
-                    "which changes rods' intensities by up to tens of % (mlsim accuracy SCENE --stage render); "
-                    "fidelity.render.tier = \"path\" renders the deformed sheet")
+                    "which changes rods' intensities by up to tens of % (mlsim accuracy SCENE --stage render)")
     else:
-        vertices = render.deformed_vertices(episode, em.patches.vertices_m)
         result = render.render_frames(sheet, radiance, "path", spp=spec.spp, seed=scene.seed, vertices_m=vertices, progress=ctx.progress)
     if scene.ambient.lamp != "none":
         result.ambient, result.info["ambient"] = _ambient_image(scene, em.patches, sheet, transport)

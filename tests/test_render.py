@@ -221,6 +221,31 @@ def test_dark_and_repeated_frames_never_call_the_renderer(monkeypatch):
     assert res.rendered.tolist() == [False, True, False, False, True]
 
 
+def test_transport_hands_frames_that_moved_too_far_to_the_path_tracer(monkeypatch):
+    """The matrix is of the rest shape: a frame whose sheet moved beyond the limit is path-traced on
+    its deformed sheet (exactly the path tier's frame); the others come from the matrix."""
+    V, F = _flat_sheet(n=2)
+    sheet = SensorScene(V, F, _view(16), base_half_size_m=0.02)
+    T = trace_transport(sheet, spp=64, seed=0)
+    e = np.full((3, len(V)), 1e15)
+    e[1] *= 2.0
+    e[2] *= 3.0
+    moved = np.stack([V, V + [0, 0, 2e-4], V + [0, 0, 2e-3]])  # 0, 0.2 and 2 mm up
+    calls = []
+    real = SensorScene.render
+    monkeypatch.setattr(SensorScene, "render", lambda self, spp, seed: calls.append(self.vertices_mm[0, 2]) or real(self, spp, seed))
+    res = render_frames(sheet, e, "transport", transport=T, vertices_m=moved, path_above_m=1e-3, spp=8, seed=1)
+    assert res.info["path_frames"] == [2] and len(calls) == 1
+    assert calls[0] == pytest.approx(1e3 * (V[0, 2] + 2e-3))  # rendered on the moved sheet
+    assert np.array_equal(res.radiance[:2], T.apply(e[:2]))
+    # without the limit, every frame from the matrix
+    pure = render_frames(sheet, e, "transport", transport=T, vertices_m=moved)
+    assert pure.info["path_frames"] == [] and len(calls) == 1
+    # the handed-over frame is the path tier's frame, sample for sample
+    path = render_frames(sheet, e, "path", vertices_m=moved, spp=8, seed=1)
+    assert np.array_equal(res.radiance[2], path.radiance[2])
+
+
 def test_bad_input_is_refused_with_the_fix():
     V, F = _flat_sheet(n=2)
     sheet = SensorScene(V, F, _view(16), base_half_size_m=0.02)

@@ -35,6 +35,6 @@ def test_path_error_falls_at_the_monte_carlo_rate(tmp_path, cache):
     # (its error here is the rest-shape assumption on a slide; tests/test_render.py checks it at rest)
     assert transport.precompute_s > 0 and transport.per_frame_ms < min(r.per_frame_ms for r in rows if r.tier == "path")
     table = list(csv.DictReader(open(tmp_path / "accuracy_render.csv")))
-    assert len(table) == 2 * len(spps) + 1
+    assert len(table) == 2 * len(spps) + 2  # path x (shortcut, spectral), transport, transport+path
     assert (tmp_path / "accuracy_render.png").stat().st_size > 10_000
     assert any(r["pareto_image"] == "True" for r in table)

@@ -5,7 +5,11 @@ Two tiers behind one function (:func:`render_frames`), selected by ``fidelity.re
 - ``path`` (:meth:`mlsim.render.sensor_scene.SensorScene.render`): Mitsuba path-traces every frame
   on the deformed sheet, ``fidelity.render.spp`` samples per pixel;
 - ``transport`` (:mod:`mlsim.render.transport`): one sparse pixels x vertices matrix traced once per
-  geometry (cached by the pipeline), then every frame is a sparse product.
+  geometry (cached by the pipeline), then every frame is a sparse product. The matrix is of the rest
+  shape, and the rods' deformation changes what reaches the camera (on the default demo's slide,
+  10-45 % per rod, from the moved walls and tips and from the changed bounces inside the rods), so
+  frames in which the sheet moved more than a limit (``fidelity.render.transport_max_displacement_mm``)
+  are path-traced instead.
 
 Both return mono photon radiance (photons s^-1 m^-2 sr^-1 of ZnS:Cu light, (F, H, W)); the camera
 stage turns it into per-channel radiance with :func:`mlsim.render.optics.ml_channel_factors`.
@@ -97,12 +101,17 @@ def deformed_vertices(episode, vertices_m) -> np.ndarray:
 
 
 def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "transport", *, spp: int = 16, seed: int = 0,
-                  vertices_m=None, transport: TransportMatrix | None = None, progress: bool = False) -> RenderResult:
+                  vertices_m=None, transport: TransportMatrix | None = None, path_above_m: float | None = None,
+                  progress: bool = False) -> RenderResult:
     """Radiance images (F, H, W) of per-vertex radiance (F, N) (see :func:`radiance_of`).
 
     tier ``transport`` needs ``transport`` (a :class:`TransportMatrix` of this sheet); ``path`` renders
     with Mitsuba at ``spp``, frame f with the seed (seed, f), on ``vertices_m`` (F, N, 3) when given
     (the deformed sheet), else on the sheet as built.
+
+    ``path_above_m`` (transport tier, with ``vertices_m``): frames in which some vertex of the sheet
+    moved further than this from the rest shape are path-traced instead (the matrix is of the rest
+    shape; ``RenderResult.info["path_frames"]`` lists them). None: every frame from the matrix.
     """
     if tier not in RENDER_TIERS:
         raise ValueError(f'render tier "{tier}": choose one of {", ".join(RENDER_TIERS)}')
@@ -125,19 +134,23 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
             raise ValueError(f"vertices_m of shape {vertices_m.shape}: must be ({F}, {sensor_scene.n_vertices}, 3)")
         same[1:] &= np.all(vertices_m[1:] == vertices_m[:-1], axis=(1, 2))
     todo = np.flatnonzero(lit & ~same)
+    traced = todo if tier == "path" else np.array([], int)
     if tier == "transport":
         if transport is None:
             raise ValueError("the transport tier needs the sheet's TransportMatrix (trace_transport)")
         if transport.n_vertices != sensor_scene.n_vertices or (transport.height_px, transport.width_px) != (view.height_px, view.width_px):
             raise ValueError("the TransportMatrix was traced for another sheet or view: trace it again")
+        if path_above_m is not None and vertices_m is not None and len(todo):
+            moved = np.linalg.norm(vertices_m[todo] - sensor_scene.rest_vertices_m[None], axis=2).max(axis=1)
+            traced, todo = todo[moved > path_above_m], todo[moved <= path_above_m]
         t0 = time.perf_counter()
         if len(todo):
             out[todo] = transport.apply(e[todo])
         seconds[todo] = (time.perf_counter() - t0) / max(len(todo), 1)
-    else:
+    if len(traced):
         from tqdm.auto import tqdm
 
-        for f in tqdm(todo, desc="path tracing", unit="frame", disable=None if progress else True, leave=False):
+        for f in tqdm(traced, desc="path tracing", unit="frame", disable=None if progress else True, leave=False):
             t0 = time.perf_counter()
             if vertices_m is not None:
                 sensor_scene.set_vertices(vertices_m[f])
@@ -145,9 +158,14 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
             out[f] = sensor_scene.render(spp, _frame_seed(seed, f))
             seconds[f] = time.perf_counter() - t0
     rendered[todo] = True
+    rendered[traced] = True
     for f in np.flatnonzero(same):  # in order, so a run of repeats copies its first frame
         out[f] = out[f - 1]
-    return RenderResult(out, rendered, seconds, tier, int(spp if tier == "path" else (transport.spp if transport else 0)))
+    result = RenderResult(out, rendered, seconds, tier, int(spp if tier == "path" else (transport.spp if transport else 0)))
+    if tier == "transport":
+        result.info["path_frames"] = [int(f) for f in traced]
+        result.info["path_spp"] = int(spp)
+    return result
 
 
 def render_still(sensor_scene: SensorScene, vertex_radiance, tier: str = "transport", *, spp: int = 16, seed: int = 0,

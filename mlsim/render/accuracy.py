@@ -7,7 +7,9 @@ every phase), are rendered by every configuration and compared with a reference:
 - ``path`` at each ``spps`` (the sheet deformed per frame), spectral shortcut (mono x channel factors);
 - ``path`` at each ``spps`` rendered spectrally (``llvm_ad_spectral``, :mod:`mlsim.render.spectral`)
   when ``spectral`` is on: what the shortcut saves;
-- ``transport`` traced at each ``transport_spps`` (rest shape), spectral shortcut.
+- ``transport`` traced at each ``transport_spps`` (rest shape), spectral shortcut;
+- ``transport+path``: the transport tier as shipped, which path-traces (at ``fidelity.render.spp``)
+  the frames in which the sheet moved more than ``fidelity.render.transport_max_displacement_mm``.
 
 The reference is the spectral path tracer at ``reference_spp`` on the deformed sheet: the most
 physical render the code has. Errors, relative Frobenius norms over frames x rods x channels (R, G,
@@ -138,6 +140,15 @@ def render_accuracy(scene, spps=(1, 4, 16, 64), transport_spps=(16, 64), referen
             seconds.append((time.perf_counter() - t0) / len(chosen))
         rows.append(RenderRow("transport", int(spp), False, float(np.median(seconds)) * 1e3, trace_s,
                               _errors(mono[..., None] * k, reference, masks)))
+        limit_mm = scene.fidelity.render.transport_max_displacement_mm
+        if limit_mm is not None:  # the tier as shipped: frames where the sheet moved more are path-traced
+            log(f"[accuracy] transport traced at {spp} spp, path-tracing frames that moved > {limit_mm:g} mm")
+            t0 = time.perf_counter()
+            hybrid = render.render_frames(sheet, radiance, "transport", transport=T, spp=scene.fidelity.render.spp, seed=60_000 + spp,
+                                          vertices_m=vertices, path_above_m=limit_mm * 1e-3).radiance
+            per_frame = (time.perf_counter() - t0) / len(chosen)
+            sheet.set_vertices(sheet.rest_vertices_m)
+            rows.append(RenderRow("transport+path", int(spp), False, per_frame * 1e3, trace_s, _errors(hybrid[..., None] * k, reference, masks)))
     from mlsim.accuracy import pareto_front
 
     for e in RENDER_ERRORS:
@@ -179,7 +190,8 @@ def _plot(rows: list[RenderRow], info: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     style = {("path", False): ("o", "tab:blue", "path, shortcut"), ("path", True): ("^", "tab:green", "path, spectral"),
-             ("transport", False): ("s", "tab:orange", "transport (per-frame cost)")}
+             ("transport", False): ("s", "tab:orange", "transport, rest shape (per-frame cost)"),
+             ("transport+path", False): ("D", "tab:red", "transport + path above the displacement limit")}
     fig, axes = plt.subplots(1, len(RENDER_ERRORS), figsize=(5.2 * len(RENDER_ERRORS), 4.2), constrained_layout=True)
     for ax, e in zip(axes, RENDER_ERRORS):
         for key, (marker, colour, label) in style.items():
