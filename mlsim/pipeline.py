@@ -170,6 +170,7 @@ _transport_save, _transport_load = _npz_io("transport.npz", "mlsim.render:Transp
 _render_save, _render_load = _npz_io("render.npz", "mlsim.render:RenderResult")
 _camera_save, _camera_load = _npz_io("camera.npz", "mlsim.render.output:CameraFrames")
 _calibration_save, _calibration_load = _npz_io("calibration.npz", "mlsim.render.calibration_frame:CalibrationFrame")
+_dllm_save, _dllm_load = _npz_io("dllm.npz", "dllm.episode:DllmEpisode")
 
 
 def _solve_run(scene: Scene, inputs: dict, ctx: "RunContext"):
@@ -472,6 +473,21 @@ def _calibration_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
     return write_calibration(result, out_dir)
 
 
+def _dllm_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from dllm.episode import run_episode
+    from mlsim.render.output import idle_frames
+
+    n_idle = max(int(round(scene.dllm.init_s * scene.camera.fps)), 1)
+    idle = idle_frames(scene, inputs["render"], n_idle)
+    return run_episode(scene, inputs["camera"], inputs["calibration"].rgb, idle)
+
+
+def _dllm_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from dllm.episode import write
+
+    return write(result, out_dir)
+
+
 def _camera_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from mlsim.render import output
 
@@ -579,6 +595,18 @@ _STAGE_LIST = [
         load=_calibration_load,
         write=_calibration_write,
         summarize=lambda result: dict(result.info),
+    ),
+    Stage(
+        name="dllm",
+        doc="the DLLM detector (SPEC 1.6) on the camera frames: calibration on the calibration frame, thresholds from 1 s of idle frames; "
+            "writes the feature time series, the events table and a taxel heatmap",
+        reads=("dllm", "camera", "ambient", "optics", "sensor", "seed"),
+        needs=("camera", "calibration", "render"),
+        run=_dllm_run,
+        save=_dllm_save,
+        load=_dllm_load,
+        write=_dllm_write,
+        summarize=lambda result: result.summary(),
     ),
     Stage(
         name="verify_s2",

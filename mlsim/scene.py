@@ -433,6 +433,10 @@ class DllmSpec(_Model):
     beta: Pos = 1.3
     init_s: Pos = 1.0  # SPEC 1.6: 1 s of frames
     blur_sigma_px: Pos = 2.0
+    # the thresholds follow recent data (dllm.detector): towards idle frames with this time constant,
+    adapt_s: Pos = 1.0
+    # and during events with this one (a press barely moves them; a lamp switched on is absorbed)
+    recover_s: Pos = 5.0
 
 
 # ------------------------------------------------------------------------------------- fidelity
@@ -676,7 +680,7 @@ def check_consistency(scene: Scene) -> list[Problem]:
     for i, out in enumerate(scene.outputs):
         if out not in OUTPUTS:
             problems.append(Problem(f"outputs[{i}]", out, f"unknown output; choose from: {', '.join(OUTPUTS)}"))
-        elif out in ("solve", "emission", "render", "camera") and scene.load is None:
+        elif out in ("solve", "emission", "render", "camera", "dllm") and scene.load is None:
             problems.append(Problem(f"outputs[{i}]", out, f"the {out} stage needs a [load] section (an indenter and its segments)"))
         elif out == "verify_s2" and scene.verify_s2 is None:
             problems.append(Problem(f"outputs[{i}]", out, "the verification needs a [verify_s2] section (see scenes/verify_fem_s2.toml)"))

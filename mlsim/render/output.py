@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CameraFrames", "expose", "write_camera", "write_render", "render_summary", "contact_sheet", "write_mp4"]
+__all__ = ["CameraFrames", "expose", "idle_frames", "write_camera", "write_render", "render_summary", "contact_sheet", "write_mp4"]
 
 
 @dataclass
@@ -110,6 +110,27 @@ def expose(scene, render_result, emission_result) -> CameraFrames:
     if ambient is not None:
         rod_ambient_e = level[:, None] * ((ambient.reshape(1, -1) @ masks.T) * (float(k_amb.sum()) * per_radiance_e))
     return CameraFrames(frames, windows, render_result.rendered.copy(), rod_photons, rod_signal_e, params.fps, rod_ambient_e, level)
+
+
+def idle_frames(scene, render_result, n_frames: int) -> np.ndarray:
+    """(n_frames, H, W, 3) uint8: the camera's frames before the episode (t = -n / fps ... -1 / fps),
+    with no ML light: sensor noise and the ambient lamp at its level then. The DLLM initialises its
+    thresholds on these (SPEC 1.6: 1 s of frames before capture). Their own seeded stream."""
+    from mlsim.camera import Camera
+    from mlsim.render.optics import camera_params
+
+    params = camera_params(scene)
+    camera = Camera(params)
+    windows = np.asarray(camera.exposure_windows_s(n_frames)) - n_frames / params.fps
+    ambient, level, k_amb = _ambient_terms(scene, render_result, windows)
+    H, W = render_result.radiance.shape[1:]
+    rng = np.random.default_rng([scene.seed, 0x1D1E])
+    out = np.empty((n_frames, H, W, 3), np.uint8)
+    dark = np.zeros((H, W, 3), np.float32)
+    for f in range(n_frames):
+        channels = dark if ambient is None or level[f] <= 0 else (level[f] * ambient)[..., None] * k_amb
+        out[f] = camera(channels, rng, noise=scene.camera.noise)
+    return out
 
 
 def _ambient_terms(scene, render_result, windows_s):

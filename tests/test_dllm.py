@@ -1,0 +1,226 @@
+"""The DLLM on synthetic frames: calibration recovers analytic disks in row-major order; features
+recover blobs at known offsets (l within 0.5 px, omega within 1 deg); the gates fire exactly when
+the sums cross alpha D and beta B_n; thresholds recover after a lasting change; bad input is refused
+with the field named."""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+import pytest
+
+from dllm.calibration import Calibration, CalibrationError, calibrate
+from dllm.detector import Dllm, DllmParams
+from dllm.features import taxel_features, taxel_index, taxel_sums
+
+H = W = 350
+
+
+def _grid(rows=5, cols=5, pitch=67.0, jitter=0.0, seed=0):
+    rng = np.random.default_rng(seed)
+    c = np.array([[W / 2 + (j - (cols - 1) / 2) * pitch, H / 2 + (i - (rows - 1) / 2) * pitch] for i in range(rows) for j in range(cols)])
+    return c + rng.uniform(-jitter, jitter, c.shape)
+
+
+def _disks(centres, radius, inside=200.0, outside=40.0, ss=4):
+    """An anti-aliased frame of bright disks (ss x ss supersampling per pixel)."""
+    o = (np.arange(ss) + 0.5) / ss - 0.5
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    cover = np.zeros((H, W))
+    for dy in o:
+        for dx in o:
+            d2 = np.min([(xx + dx - cx) ** 2 + (yy + dy - cy) ** 2 for cx, cy in centres], axis=0)
+            cover += d2 <= radius**2
+    img = outside + (inside - outside) * cover / ss**2
+    return np.repeat(np.round(img).astype(np.uint8)[..., None], 3, axis=2)
+
+
+def test_calibration_recovers_the_disks_row_major():
+    centres = _grid(jitter=3.0, seed=2)
+    cal = calibrate(_disks(centres, 17.0))
+    assert cal.n_taxels == 25 and cal.shape_hw == (H, W)
+    # row-major: the same order as built; Hough's accumulator (dp = 1) puts centres on a half-pixel grid
+    assert np.abs(cal.centres_px - centres).max() < 0.75
+    assert cal.radius_px == pytest.approx(17.0, abs=1.0)
+
+
+def test_calibration_round_trip(tmp_path):
+    cal = Calibration(_grid(), 17.25, (H, W))
+    back = Calibration.load(cal.save(tmp_path / "cal.json"))
+    assert np.array_equal(back.centres_px, cal.centres_px) and back.radius_px == 17.25 and back.shape_hw == (H, W)
+
+
+def test_a_frame_without_circles_is_refused_with_the_count_and_an_overlay(tmp_path):
+    with pytest.raises(CalibrationError, match=r"found no circles, expected 5 x 5 = 25") as info:
+        calibrate(np.full((H, W, 3), 30, np.uint8), debug_path=tmp_path / "overlay.png")
+    assert info.value.debug_image.is_file()
+    with pytest.raises(CalibrationError, match=r"found 24 circles"):
+        calibrate(_disks(_grid()[:24], 17.0))
+
+
+def _blob_frame(cal, offsets_px, angles_deg, sigma=2.5, peak=200.0, background=0.0):
+    """Gaussian blobs at c_n + l (cos w, -sin w) (image rows run down), sampled at pixel centres."""
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    img = np.full((H, W), background)
+    for (cx, cy), l, w in zip(cal.centres_px, offsets_px, angles_deg):
+        bx, by = cx + l * math.cos(math.radians(w)), cy - l * math.sin(math.radians(w))
+        img += peak * np.exp(-((xx - bx) ** 2 + (yy - by) ** 2) / (2 * sigma**2))
+    return img
+
+
+def test_features_recover_known_offsets_and_angles():
+    cal = Calibration(_grid(), 20.0, (H, W))
+    rng = np.random.default_rng(5)
+    l = rng.uniform(2.0, 8.0, 25)
+    w = np.arange(25) * 15.0  # 0 to 360 deg, the full circle
+    idx = taxel_index(cal)
+    img = np.round(_blob_frame(cal, l, w)).astype(np.uint8)  # an 8-bit frame, as the camera gives
+    Hs, Sx, Sy = taxel_sums(img, idx)
+    z = taxel_features(Hs, Sx, Sy, idx.centres_px, np.ones(25, bool))
+    assert np.abs(z[:, 1] - l).max() < 0.5
+    dw = (z[:, 2] - w % 360 + 180) % 360 - 180
+    assert np.abs(dw).max() < 1.0
+    assert np.all((z[:, 2] >= 0) & (z[:, 2] < 360))
+    # only the disks' pixels count: N pi R^2 of them
+    assert len(idx.pixels) == pytest.approx(25 * math.pi * 20**2, rel=0.01)
+    assert np.array_equal(taxel_features(Hs, Sx, Sy, idx.centres_px, np.zeros(25, bool)), np.zeros((25, 3)))
+
+
+def _idle_detector(alpha=1.25, beta=1.5, level=10):
+    cal = Calibration(_grid(), 20.0, (H, W))
+    det = Dllm(cal, DllmParams(alpha=alpha, beta=beta, init_frames=4))
+    base = np.full((H, W), level, np.uint8)
+    for _ in range(4):
+        r = det.step(base)
+        assert r.initialising and not r.event
+    return det, base
+
+
+def test_global_gate_fires_exactly_above_alpha_D():
+    det, base = _idle_detector()
+    D = det.D
+    assert D == H * W * 10 and det.ready
+    need = int(round(0.25 * D))  # alpha D - D, an integer here
+    for extra, fires in ((need, False), (need + 1, True)):
+        d = copy.deepcopy(det)
+        img = base.astype(np.int64).ravel()
+        _add(img, np.arange(img.size), extra)
+        frame = img.reshape(H, W).astype(np.uint8)
+        assert frame.astype(np.int64).sum() == D + extra
+        assert d.step(frame).event is fires
+    assert det.counts == {"frames": 4, "initialising": 4, "discarded": 0, "events": 0}
+
+
+def _add(flat, pixels, amount):
+    """Add an integer amount of intensity to a frame's pixels, at most 245 per pixel (base 10)."""
+    full, rest = divmod(int(amount), 245)
+    flat[pixels[:full]] += 245
+    flat[pixels[full]] += rest
+
+
+def test_taxel_gate_fires_exactly_above_beta_B():
+    det, base = _idle_detector(alpha=1.0001, beta=1.5)
+    B, idx = det.B.copy(), det.index
+    extra = 0.5 * B  # beta B - B: an integer here (B = 10 x the disk's pixel count)
+    assert np.all(extra == np.round(extra))
+    flat = base.astype(np.int64).ravel()
+    for n in range(25):  # odd taxels one unit above their threshold, even ones exactly on it
+        _add(flat, idx.pixels[idx.starts[n]:], extra[n] + n % 2)
+    r = copy.deepcopy(det).step(flat.reshape(H, W).astype(np.uint8))
+    assert r.event
+    assert np.array_equal(r.taxel_sums, B + extra + np.arange(25) % 2)
+    assert (r.features[:, 0] > 0).tolist() == [bool(n % 2) for n in range(25)]
+
+
+def test_discarded_frames_do_no_feature_work(monkeypatch):
+    import dllm.detector as detector
+
+    det, base = _idle_detector()
+    calls = []
+    monkeypatch.setattr(detector, "taxel_sums", lambda *a: calls.append(1) or taxel_sums(*a))
+    for _ in range(10):
+        assert not det.step(base).event
+    assert calls == [] and det.counts["discarded"] == 10
+
+
+def test_thresholds_recover_after_the_lights_go_on():
+    """A lasting rise of every pixel from 10 to 30: events at first, then absorbed as the update rule
+    says (tau ln(dM / ((alpha - 1) D)), 3.5 recover_s here); afterwards a local press still fires
+    its taxel, and only it."""
+    det, base = _idle_detector(alpha=1.02, beta=1.3, level=10)
+    lit = np.full((H, W), 30, np.uint8)
+    events = [det.step(lit).event for _ in range(int(30 * 4 * det.params.recover_s))]
+    assert events[0] and not events[-1]
+    # D follows M with tau = recover_s while the frames are events: exactly j* of them, the first j
+    # with D_j = M - (M - D_0)(1 - a)^j >= M / alpha
+    a = 1 - math.exp(-1 / (30.0 * det.params.recover_s))
+    M, D0 = 30.0 * H * W, 10.0 * H * W
+    j_star = math.ceil(math.log((M - M / 1.02) / (M - D0)) / math.log(1 - a))
+    assert sum(events) == j_star and not any(events[j_star:])
+    assert det.D == pytest.approx(30 * H * W, rel=0.03)
+    pressed = lit.copy()
+    cx, cy = det.calibration.centres_px[12]
+    yy, xx = np.mgrid[0:H, 0:W]
+    pressed[((xx - cx) ** 2 + (yy - cy) ** 2 <= 20**2) & (xx > cx)] = 255  # the disk's right half
+    r = det.step(pressed)
+    assert r.event and r.features[12, 0] > 0 and np.count_nonzero(r.features[:, 0]) == 1
+    assert r.features[12, 2] == pytest.approx(0.0, abs=1.0) or r.features[12, 2] == pytest.approx(360.0, abs=1.0)
+    # a half disk at 255 against a half at 30: the centroid 4 R / (3 pi) x (255 - 30) / (255 + 30)
+    assert r.features[12, 1] == pytest.approx(4 * 20 / (3 * math.pi) * 225 / 285, rel=0.05)
+
+
+@pytest.mark.parametrize("bad, match", [
+    (np.zeros((H, W, 3), np.float32), "dtype float32"),
+    (np.full((H, W, 3), np.nan), "NaN"),
+    (np.zeros((H, W, 4), np.uint8), r"shape \(350, 350, 4\)"),
+    (np.zeros((100, 100, 3), np.uint8), "calibration is of"),
+])
+def test_bad_frames_are_refused(bad, match):
+    det, _ = _idle_detector()
+    with pytest.raises(ValueError, match=match):
+        det.step(bad)
+
+
+def test_bad_params_name_the_field():
+    with pytest.raises(ValueError, match="DllmParams.alpha"):
+        DllmParams(alpha=float("nan"))
+    with pytest.raises(ValueError, match="init_frames"):
+        DllmParams(init_frames=0)
+
+
+def test_pipeline_runs_the_detector_on_the_episode_and_writes_its_files(tmp_path, cache):
+    """The tiny scene end to end: calibration on its calibration frame finds its 2 x 2 rods near the
+    paraxial centres; 1 s of idle frames initialise the thresholds; frames that glow give events and
+    the dark ones none; the CSVs and the heatmap are written; the same scene gives the same features."""
+    import csv
+    from pathlib import Path
+
+    from mlsim import pipeline
+    from mlsim.render import rod_disks_px
+    from mlsim.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "mavig_tiny.toml",
+                       {"outputs": ["dllm", "camera"], "camera.width_px": 96, "camera.height_px": 96, "fidelity.render.transport_spp": 8})
+    res = pipeline.run(scene, out_dir=tmp_path, cache=cache, progress=False, log=lambda m: None)
+    d, cam = res.results["dllm"], res.results["camera"]
+    centres, radius = rod_disks_px(scene)
+    # taxels are numbered row-major in the image; rods in the sensor's order (mirrored: seen from below)
+    dist = np.linalg.norm(d.calibration.centres_px[:, None] - centres[None], axis=2)
+    assert dist.min(axis=1).max() < 0.25 * radius
+    assert sorted(d.rod_of_taxel.tolist()) == [0, 1, 2, 3] and np.array_equal(d.rod_of_taxel, dist.argmin(axis=1))
+    assert d.idle_frames == 30 and d.counts["initialising"] == 30
+    assert d.counts["events"] + d.counts["discarded"] == len(cam.frames)
+    signal = cam.rod_signal_e.sum(axis=1)
+    assert d.events[np.argmax(signal)] and not d.events[signal == 0].any()
+    rows = list(csv.DictReader(open(tmp_path / "dllm_features.csv")))
+    assert len(rows) == len(cam.frames) and "taxel3_omega_deg" in rows[0]
+    assert len(list(csv.DictReader(open(tmp_path / "dllm_events.csv")))) == int(d.events.sum())
+    assert (tmp_path / "dllm_heatmap.png").stat().st_size > 10_000
+    # the same scene and seed from the same mesh (fTetWild's are not reproducible): the same features
+    fresh = pipeline.Cache(tmp_path / "c2")
+    mesh_key = pipeline.stage_key(scene, "mesh")
+    fresh.store(pipeline.STAGES["mesh"], mesh_key, cache.fetch(pipeline.STAGES["mesh"], mesh_key))
+    again = pipeline.run(scene.with_values({"outputs": ["dllm"]}), out_dir=None, cache=fresh, progress=False, log=lambda m: None)
+    assert np.array_equal(again.results["dllm"].features, d.features)
