@@ -29,6 +29,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_render.py
 	$(PY) benchmarks/bench_spectral.py
 	$(PY) benchmarks/ambient_study.py
+	$(PY) benchmarks/bench_dllm.py
 
 venv: $(STAMP)
 

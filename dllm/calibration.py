@@ -101,7 +101,8 @@ class Calibration:
 
 def grey(frame) -> np.ndarray:
     """(H, W) uint8 grey level of an (H, W, 3) RGB or (H, W) uint8 frame: OpenCV's fixed-point
-    Y = 0.299 R + 0.587 G + 0.114 B (rounded), so every path of the detector sees the same values."""
+    Y = (9798 R + 19235 G + 3735 B + 2^14) >> 15 (0.299, 0.587, 0.114 in 15 bits), which
+    :func:`dllm.batched.rgb_to_grey` reproduces bit for bit, so every path sees the same values."""
     import cv2
 
     f = _check_frame(frame, "frame")
