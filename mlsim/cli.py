@@ -1,4 +1,4 @@
-"""Command line: ``mlsim run | check | mesh | accuracy``.
+"""Command line: ``mlsim run | check | mesh | accuracy | direction``.
 
 Exit codes: 0 success, 2 bad input (an invalid scene or argument; the message names the field),
 1 failure (a stage could not finish; the message says what to try). Unexpected errors are bugs:
@@ -203,6 +203,23 @@ def _render_accuracy(args, scene, out_dir: Path) -> int:
     return EXIT_OK
 
 
+def cmd_direction(args) -> int:
+    from dllm.direction import direction_study
+
+    scene = _load(args)
+    out_dir = Path(args.out) if args.out else Path("out") / f"{scene.name}_direction"
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    rows = direction_study(scene, args.angles, out_dir, _cache(args), progress=not args.quiet, log=log)
+    print(f"{'applied':>8} {'measured':>9} {'error':>7} {'events':>6} {'samples':>7}")
+    for r in rows:
+        print(f"{r.applied_deg:>8g} {r.measured_deg:>9.1f} {r.error_deg:>7.1f} {r.events:>6} {r.samples:>7}")
+    ok = [abs(r.error_deg) for r in rows if r.error_deg == r.error_deg]
+    print(f"mean absolute error {sum(ok) / len(ok):.1f} deg over {len(ok)} directions (SPEC 1.5: within a few degrees on the real sensor)"
+          if ok else "no direction gave events")
+    print(f"wrote {out_dir / 'direction.csv'}, .json, .png")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mlsim", description="Simulate the mechanoluminescent visuotactile sensor.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -246,6 +263,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output directory (default out/<scene name>_accuracy)")
     p.add_argument("--cache", help="cache directory")
     p.set_defaults(func=cmd_accuracy)
+
+    p = sub.add_parser("direction", help="the DLLM's angle against the applied push direction (SPEC 1.5 direction test)")
+    common(p)
+    p.add_argument("--angles", type=float, nargs="+", default=[0, 15, 30, 45, 60, 75, 90], metavar="DEG",
+                   help="applied directions (default 0-90 in 15 deg steps; the full circle: 0 15 ... 345)")
+    p.add_argument("--out", help="output directory (default out/<scene name>_direction)")
+    p.add_argument("--cache", help="cache directory")
+    p.set_defaults(func=cmd_direction)
     return parser
 
 

@@ -224,3 +224,43 @@ def test_pipeline_runs_the_detector_on_the_episode_and_writes_its_files(tmp_path
     fresh.store(pipeline.STAGES["mesh"], mesh_key, cache.fetch(pipeline.STAGES["mesh"], mesh_key))
     again = pipeline.run(scene.with_values({"outputs": ["dllm"]}), out_dir=None, cache=fresh, progress=False, log=lambda m: None)
     assert np.array_equal(again.results["dllm"].features, d.features)
+
+
+def test_image_angles_turn_into_sensor_directions_through_the_optics():
+    """A light offset towards a rod's +x side in the sensor appears towards image -x (the camera looks
+    up: mirrored columns), so omega = 180 deg there and the sensor direction is 0; +y is image up."""
+    from pathlib import Path
+
+    from dllm.direction import sensor_angle_deg, wrap_deg
+    from mlsim.render import rod_disks_px
+    from mlsim.render.optics import view_of
+    from mlsim.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "mavig_default.toml")
+    centres, _ = rod_disks_px(scene)
+    # rods 0 and 1 are neighbours along +x in the sensor; rods 0 and 5 along +y
+    dx_img = centres[1] - centres[0]
+    dy_img = centres[5] - centres[0]
+    omega_x = math.degrees(math.atan2(-dx_img[1], dx_img[0])) % 360
+    omega_y = math.degrees(math.atan2(-dy_img[1], dy_img[0])) % 360
+    assert sensor_angle_deg(omega_x) == pytest.approx(0.0, abs=1e-9) or sensor_angle_deg(omega_x) == pytest.approx(360.0)
+    assert sensor_angle_deg(omega_y) == pytest.approx(90.0, abs=1e-9)
+    assert wrap_deg([190.0, -190.0, 180.0]).tolist() == [-170.0, 170.0, 180.0]
+    assert view_of(scene).width_px == 350
+
+
+def test_direction_study_turns_with_the_push(tmp_path, cache):
+    """Invariance on the symmetric 2 x 2 sensor pushed at its centre: pushing the opposite way turns
+    the DLLM's direction by 180 deg (within 30), and the study writes its table and plot."""
+    from pathlib import Path
+
+    from dllm.direction import direction_study, wrap_deg
+    from mlsim.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "mavig_tiny.toml",
+                       {"camera.width_px": 96, "camera.height_px": 96, "fidelity.render.transport_spp": 8})
+    rows = direction_study(scene, [90.0, 270.0], tmp_path, cache, progress=False, log=lambda m: None)
+    assert all(r.events > 0 and r.samples > 0 for r in rows)
+    assert abs(wrap_deg(rows[1].measured_deg - rows[0].measured_deg)) == pytest.approx(180.0, abs=30.0)
+    assert (tmp_path / "direction.png").stat().st_size > 10_000
+    assert len((tmp_path / "direction.csv").read_text().splitlines()) == 3
