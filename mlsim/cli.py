@@ -1,4 +1,4 @@
-"""Command line: ``mlsim run | check | mesh | accuracy | direction``.
+"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient``.
 
 Exit codes: 0 success, 2 bad input (an invalid scene or argument; the message names the field),
 1 failure (a stage could not finish; the message says what to try). Unexpected errors are bugs:
@@ -220,6 +220,31 @@ def cmd_direction(args) -> int:
     return EXIT_OK
 
 
+def cmd_ambient(args) -> int:
+    from dllm.ambient_study import ambient_study
+
+    scene = _load(args)
+    out_dir = Path(args.out) if args.out else Path("out") / f"{scene.name}_ambient"
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    rows, rec = ambient_study(scene, alphas=tuple(args.alphas), betas=tuple(args.betas), out_dir=out_dir, cache=_cache(args),
+                              progress=not args.quiet, log=log)
+    print(f"{'setting':36} {'alpha':>6} {'beta':>5} {'detection':>9} {'false':>6} {'taxels':>6}")
+    for r in rows:
+        mark = " <" if (r.alpha, r.beta) == (rec.get("alpha"), rec.get("beta")) else ""
+        print(f"{r.setting:36} {r.alpha:>6g} {r.beta:>5g} {r.detection:>9.3f} {r.false_rate:>6.3f} {r.taxel_detection:>6.3f}{mark}")
+    if rec.get("false_triggers_at_any_threshold"):
+        print("false triggers at every threshold of the grid (the detector fires until it recovers): "
+              + "; ".join(rec["false_triggers_at_any_threshold"]))
+    if rec.get("alpha") is None:
+        print(f"no recommendation: {rec['why']}")
+    else:
+        print(f"recommended: alpha {rec['alpha']:g}, beta {rec['beta']:g} ({rec['why']}; worst detection {rec['worst_detection']:.3f})")
+        for name, v in rec["per_setting"].items():
+            print(f"  {name}: detection {v['detection']:.3f}, false triggers {v['false_rate']:.3f} per frame, taxels {v['taxel_detection']:.3f}")
+    print(f"wrote {out_dir / 'ambient_study.csv'}, .json and a heatmap per setting")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mlsim", description="Simulate the mechanoluminescent visuotactile sensor.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -271,6 +296,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output directory (default out/<scene name>_direction)")
     p.add_argument("--cache", help="cache directory")
     p.set_defaults(func=cmd_direction)
+
+    p = sub.add_parser("ambient", help="DLLM thresholds under ambient light: detection and false triggers per setting and (alpha, beta)")
+    common(p)
+    p.add_argument("--alphas", type=float, nargs="+", default=[1.01, 1.02, 1.05, 1.1, 1.2], help="global gate factors")
+    p.add_argument("--betas", type=float, nargs="+", default=[1.1, 1.3, 1.5, 2.0], help="taxel gate factors")
+    p.add_argument("--out", help="output directory (default out/<scene name>_ambient)")
+    p.add_argument("--cache", help="cache directory")
+    p.set_defaults(func=cmd_ambient)
     return parser
 
 

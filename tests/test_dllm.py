@@ -264,3 +264,34 @@ def test_direction_study_turns_with_the_push(tmp_path, cache):
     assert abs(wrap_deg(rows[1].measured_deg - rows[0].measured_deg)) == pytest.approx(180.0, abs=30.0)
     assert (tmp_path / "direction.png").stat().st_size > 10_000
     assert len((tmp_path / "direction.csv").read_text().splitlines()) == 3
+
+
+def test_ambient_study_false_triggers_follow_the_lights_on_jump(tmp_path, cache):
+    """A strong lamp over a sensor without its absorber, switched on during the idle episode: the
+    first lit frame raises M by a factor J over D; it is a false trigger exactly when alpha < J. The
+    study's table, recommendation (no false trigger anywhere) and heatmaps follow."""
+    from pathlib import Path
+
+    from dllm.ambient_study import _frames, ambient_study
+    from dllm.calibration import grey
+    from mlsim.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "mavig_tiny.toml",
+                       {"camera.width_px": 96, "camera.height_px": 96, "fidelity.render.transport_spp": 8})
+    lights_on = {"ambient.lamp": "white_led", "ambient.power_w": 100.0, "optics.absorber": "none", "ambient.switch_on_s": 0.1}
+    settings = {"dark": {"ambient.lamp": "none"}, "lights on": lights_on}
+    # the jump J of the first frame exposed after the switch, against the idle baseline D (pre-roll mean)
+    cam, idle, pre, _ = _frames(scene.with_values(lights_on), cache, False)
+    M = np.array([float(grey(f).astype(np.int64).sum()) for f in idle])
+    D = np.mean([float(grey(f).astype(np.int64).sum()) for f in pre])
+    first = int(np.flatnonzero(cam.windows_s[:, 0] >= 0.1)[0])
+    J = M[first] / D
+    assert 1.05 < J < 5.0, J
+    alphas = (1.01, round(0.5 * (1 + J), 3), round(1.2 * J, 3))
+    rows, rec = ambient_study(scene, settings, alphas=alphas, betas=(1.3,), out_dir=tmp_path, cache=cache, progress=False, log=lambda m: None)
+    false = {r.alpha: r.false_rate for r in rows if r.setting == "lights on"}
+    assert false[alphas[0]] > 0 and false[alphas[1]] > 0 and false[alphas[2]] == 0.0
+    assert all(r.false_rate == 0.0 for r in rows if r.setting == "dark")
+    assert rec["alpha"] == alphas[2] and rec["per_setting"]["lights on"]["false_rate"] == 0.0
+    assert len((tmp_path / "ambient_study.csv").read_text().splitlines()) == 1 + 2 * 3
+    assert (tmp_path / "ambient_lights_on.png").stat().st_size > 10_000

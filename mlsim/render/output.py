@@ -112,19 +112,21 @@ def expose(scene, render_result, emission_result) -> CameraFrames:
     return CameraFrames(frames, windows, render_result.rendered.copy(), rod_photons, rod_signal_e, params.fps, rod_ambient_e, level)
 
 
-def idle_frames(scene, render_result, n_frames: int) -> np.ndarray:
-    """(n_frames, H, W, 3) uint8: the camera's frames before the episode (t = -n / fps ... -1 / fps),
-    with no ML light: sensor noise and the ambient lamp at its level then. The DLLM initialises its
-    thresholds on these (SPEC 1.6: 1 s of frames before capture). Their own seeded stream."""
+def idle_frames(scene, render_result, n_frames: int, start_s: float | None = None, stream: int = 0) -> np.ndarray:
+    """(n_frames, H, W, 3) uint8: camera frames with no ML light, starting at ``start_s`` (default
+    -n / fps: the frames just before the episode): sensor noise and the ambient lamp at its level
+    then. The DLLM initialises its thresholds on the frames before the episode (SPEC 1.6: 1 s of
+    frames before capture). Their own seeded stream per ``stream``."""
     from mlsim.camera import Camera
     from mlsim.render.optics import camera_params
 
     params = camera_params(scene)
     camera = Camera(params)
-    windows = np.asarray(camera.exposure_windows_s(n_frames)) - n_frames / params.fps
+    start = -n_frames / params.fps if start_s is None else float(start_s)
+    windows = np.asarray(camera.exposure_windows_s(n_frames)) + start
     ambient, level, k_amb = _ambient_terms(scene, render_result, windows)
     H, W = render_result.radiance.shape[1:]
-    rng = np.random.default_rng([scene.seed, 0x1D1E])
+    rng = np.random.default_rng([scene.seed, 0x1D1E, int(stream)])
     out = np.empty((n_frames, H, W, 3), np.uint8)
     dark = np.zeros((H, W, 3), np.float32)
     for f in range(n_frames):
