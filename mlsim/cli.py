@@ -291,8 +291,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("direction", help="the DLLM's angle against the applied push direction (SPEC 1.5 direction test)")
     common(p)
-    p.add_argument("--angles", type=float, nargs="+", default=[0, 15, 30, 45, 60, 75, 90], metavar="DEG",
-                   help="applied directions (default 0-90 in 15 deg steps; the full circle: 0 15 ... 345)")
+    p.add_argument("--angles", type=float, nargs="+", default=[15.0 * k for k in range(24)], metavar="DEG",
+                   help="applied directions (default: the full circle in 15 deg steps; SPEC 1.5's bench test: 0 15 ... 90)")
     p.add_argument("--out", help="output directory (default out/<scene name>_direction)")
     p.add_argument("--cache", help="cache directory")
     p.set_defaults(func=cmd_direction)
