@@ -203,12 +203,17 @@ def _render_accuracy(args, scene, out_dir: Path) -> int:
     return EXIT_OK
 
 
+def _study(args, kind: str):
+    """(scene, output directory (default out/<scene name>_<kind>), a log to stderr unless --quiet)."""
+    scene = _load(args)
+    out_dir = Path(args.out) if args.out else Path("out") / f"{scene.name}_{kind}"
+    return scene, out_dir, (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+
+
 def cmd_direction(args) -> int:
     from dllm.direction import direction_study
 
-    scene = _load(args)
-    out_dir = Path(args.out) if args.out else Path("out") / f"{scene.name}_direction"
-    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    scene, out_dir, log = _study(args, "direction")
     rows = direction_study(scene, args.angles, out_dir, _cache(args), progress=not args.quiet, log=log)
     print(f"{'applied':>8} {'measured':>9} {'error':>7} {'events':>6} {'samples':>7}")
     for r in rows:
@@ -223,9 +228,7 @@ def cmd_direction(args) -> int:
 def cmd_ambient(args) -> int:
     from dllm.ambient_study import ambient_study
 
-    scene = _load(args)
-    out_dir = Path(args.out) if args.out else Path("out") / f"{scene.name}_ambient"
-    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    scene, out_dir, log = _study(args, "ambient")
     rows, rec = ambient_study(scene, alphas=tuple(args.alphas), betas=tuple(args.betas), out_dir=out_dir, cache=_cache(args),
                               progress=not args.quiet, log=log)
     print(f"{'setting':36} {'alpha':>6} {'beta':>5} {'detection':>9} {'false':>6} {'taxels':>6}")
