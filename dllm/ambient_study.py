@@ -79,15 +79,6 @@ def _frames(scene, cache, progress, idle_s: float = 3.0):
     return cam, idle, pre, res.results["calibration"].rgb
 
 
-def _detect(cal, params, pre, frames):
-    from dllm.detector import Dllm
-
-    det = Dllm(cal, params)
-    for f in pre:
-        det.step(f)
-    return det.run(frames)
-
-
 def ambient_study(scene, settings: dict | None = None, alphas=(1.01, 1.02, 1.05, 1.1, 1.2), betas=(1.1, 1.3, 1.5, 2.0),
                   touch_share: float = 0.05, idle_s: float = 3.0, out_dir=None, cache=None, progress: bool = True,
                   log=print) -> tuple[list[AmbientRow], dict]:
@@ -95,22 +86,18 @@ def ambient_study(scene, settings: dict | None = None, alphas=(1.01, 1.02, 1.05,
     heatmap per setting to ``out_dir`` when given."""
     from dataclasses import replace
 
-    from dllm.calibration import calibrate, hough_params_for
     from dllm.detector import DllmParams
-    from mlsim.render import rod_disks_px
+    from dllm.episode import calibrate_scene, detect
 
     if scene.load is None:
         raise ValueError("load: the ambient study needs a scene with a [load] section (its interaction episode)")
     settings = DEFAULT_SETTINGS if settings is None else settings
-    g = scene.sensor
     rows: list[AmbientRow] = []
     for name, overrides in settings.items():
         log(f"[ambient] {name}")
         s = scene.with_values(overrides)
         cam, idle, pre, cal_rgb = _frames(s, cache, progress, idle_s)
-        expected = rod_disks_px(s)
-        cal = calibrate(cal_rgb, g.rows, g.cols, hough_params_for(cal_rgb.shape[:2], g.rows, g.cols, s.dllm.blur_sigma_px, expected))
-        rod_of_taxel = np.linalg.norm(cal.centres_px[:, None] - expected[0][None], axis=2).argmin(axis=1)
+        cal, rod_of_taxel = calibrate_scene(s, cal_rgb)
         signal = cam.rod_signal_e  # (T, R) noiseless ML signal per rod
         touch = signal.max(axis=1) >= touch_share * signal.max() if signal.max() > 0 else np.zeros(len(signal), bool)
         lit = signal >= touch_share * np.maximum(signal.max(axis=1, keepdims=True), 1e-30)
@@ -118,8 +105,8 @@ def ambient_study(scene, settings: dict | None = None, alphas=(1.01, 1.02, 1.05,
         for a in alphas:
             for b in betas:
                 p = replace(base, alpha=float(a), beta=float(b))
-                ev, feats = _detect(cal, p, pre, cam.frames)
-                ev_idle, _ = _detect(cal, p, pre, idle)
+                ev, feats, _ = detect(cal, p, pre, cam.frames)
+                ev_idle, _, _ = detect(cal, p, pre, idle)
                 fired_rod = np.zeros_like(lit)
                 fired_rod[:, rod_of_taxel] = feats[..., 0] > 0
                 want = lit & touch[:, None]

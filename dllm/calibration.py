@@ -81,10 +81,9 @@ class Calibration:
 
     def masks(self) -> np.ndarray:
         """(N, H, W) bool: the pixels whose centre lies within R of c_n (the areas A_n)."""
-        h, w = self.shape_hw
-        rows, cols = np.mgrid[0:h, 0:w]
-        c = self.centres_px
-        return (cols[None] - c[:, 0, None, None]) ** 2 + (rows[None] - c[:, 1, None, None]) ** 2 <= self.radius_px**2
+        from mlsim.render.output import disk_masks  # the camera stage's rod disks, the same rule
+
+        return disk_masks(self.shape_hw[0], self.shape_hw[1], self.centres_px, self.radius_px)
 
     def save(self, path) -> Path:
         """A small JSON file (centres, radius, frame shape)."""

@@ -14,7 +14,7 @@ import numpy as np
 from dllm.calibration import Calibration
 from dllm.features import FEATURES
 
-__all__ = ["DllmEpisode", "run_episode", "write", "plot_heatmap"]
+__all__ = ["DllmEpisode", "calibrate_scene", "detect", "run_episode", "write", "plot_heatmap"]
 
 
 @dataclass
@@ -51,26 +51,42 @@ class DllmEpisode:
                 "calibration_radius_px": round(self.calibration.radius_px, 3), "counts": dict(self.counts)}
 
 
-def run_episode(scene, camera_frames, calibration_rgb, idle) -> DllmEpisode:
-    """Calibrate on ``calibration_rgb`` (H, W, 3), then run the streaming detector on the ``idle``
-    frames (n, H, W, 3) (its threshold initialisation) and on ``camera_frames`` (a
-    :class:`mlsim.render.output.CameraFrames`)."""
+def calibrate_scene(scene, calibration_rgb) -> tuple[Calibration, np.ndarray]:
+    """(the calibration of a scene's calibration frame (H, W, 3), with Hough's parameters from the
+    optics' paraxial rod images; the rod each taxel sees (N,), the nearest of those images)."""
     from dllm.calibration import calibrate, hough_params_for
-    from dllm.detector import Dllm, DllmParams
     from mlsim.render import rod_disks_px
 
     g = scene.sensor
     expected = rod_disks_px(scene)
     cal = calibrate(calibration_rgb, g.rows, g.cols, hough_params_for(calibration_rgb.shape[:2], g.rows, g.cols, scene.dllm.blur_sigma_px,
                                                                       expected=expected))
-    rod_of_taxel = np.linalg.norm(cal.centres_px[:, None] - expected[0][None], axis=2).argmin(axis=1)
-    det = Dllm(cal, DllmParams.from_scene(scene))
+    return cal, np.linalg.norm(cal.centres_px[:, None] - expected[0][None], axis=2).argmin(axis=1)
+
+
+def detect(calibration: Calibration, params, idle, frames):
+    """The streaming detector from a fresh state: its threshold initialisation on the ``idle``
+    frames (n, H, W, 3), then ``frames`` -> (events (T,), features (T, N, 3), counts)."""
+    from dllm.detector import Dllm
+
+    det = Dllm(calibration, params)
     for f in idle:
         det.step(f)
     if not det.ready:
         raise ValueError(f"{len(idle)} idle frames do not complete the threshold initialisation ({det.params.init_frames} frames)")
-    events, features = det.run(camera_frames.frames)
-    return DllmEpisode(camera_frames.windows_s[:, 0].copy(), events, features, cal, rod_of_taxel, dict(det.counts), len(idle))
+    events, features = det.run(frames)
+    return events, features, dict(det.counts)
+
+
+def run_episode(scene, camera_frames, calibration_rgb, idle) -> DllmEpisode:
+    """Calibrate on ``calibration_rgb`` (H, W, 3), then run the streaming detector on the ``idle``
+    frames (n, H, W, 3) (its threshold initialisation) and on ``camera_frames`` (a
+    :class:`mlsim.render.output.CameraFrames`)."""
+    from dllm.detector import DllmParams
+
+    cal, rod_of_taxel = calibrate_scene(scene, calibration_rgb)
+    events, features, counts = detect(cal, DllmParams.from_scene(scene), idle, camera_frames.frames)
+    return DllmEpisode(camera_frames.windows_s[:, 0].copy(), events, features, cal, rod_of_taxel, counts, len(idle))
 
 
 def write(result: DllmEpisode, out_dir: Path) -> list[Path]:

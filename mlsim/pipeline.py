@@ -394,17 +394,14 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
         limit_mm = spec.transport_max_displacement_mm
         result = render.render_frames(sheet, radiance, "transport", transport=transport, spp=spec.spp, seed=scene.seed, vertices_m=vertices,
                                       path_above_m=None if limit_mm is None else limit_mm * 1e-3, progress=ctx.progress)
-        import numpy as np
-
-        moved_mm = np.linalg.norm(vertices - em.patches.vertices_m[None], axis=2).max(axis=1) * 1e3
         result.info.update(transport_spp=transport.spp, transport_nnz=int(transport.matrix.nnz),
-                           transport_dropped_fraction=transport.dropped_fraction, transport_trace_s=transport.seconds,
-                           sheet_displacement_mm=[round(float(d), 4) for d in moved_mm])
+                           transport_dropped_fraction=transport.dropped_fraction, transport_trace_s=transport.seconds)
+        moved_mm = result.info["sheet_displacement_mm"]
         if result.info["path_frames"]:
             ctx.log(f"[render] {len(result.info['path_frames'])} frames in which the sheet moved more than {limit_mm:g} mm were path-traced "
                     f"at {spec.spp} spp (the matrix is of the rest shape; fidelity.render.transport_max_displacement_mm)")
-        elif limit_mm is None and moved_mm.max() > TRANSPORT_DEFORMATION_WARN_MM:
-            f = int(np.argmax(moved_mm))
+        elif limit_mm is None and max(moved_mm) > TRANSPORT_DEFORMATION_WARN_MM:
+            f = max(range(len(moved_mm)), key=moved_mm.__getitem__)
             ctx.log(f"[render] note: the transport tier renders the rest shape; the sheet moves up to {moved_mm[f]:.2f} mm (frame {f}), "
                     "which changes rods' intensities by up to tens of % (mlsim accuracy SCENE --stage render)")
     else:

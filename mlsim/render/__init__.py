@@ -112,6 +112,7 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
     ``path_above_m`` (transport tier, with ``vertices_m``): frames in which some vertex of the sheet
     moved further than this from the rest shape are path-traced instead (the matrix is of the rest
     shape; ``RenderResult.info["path_frames"]`` lists them). None: every frame from the matrix.
+    With ``vertices_m``, ``info["sheet_displacement_mm"]`` gives each frame's largest displacement.
     """
     if tier not in RENDER_TIERS:
         raise ValueError(f'render tier "{tier}": choose one of {", ".join(RENDER_TIERS)}')
@@ -133,6 +134,7 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
         if vertices_m.shape != (F, sensor_scene.n_vertices, 3):
             raise ValueError(f"vertices_m of shape {vertices_m.shape}: must be ({F}, {sensor_scene.n_vertices}, 3)")
         same[1:] &= np.all(vertices_m[1:] == vertices_m[:-1], axis=(1, 2))
+        moved_m = np.linalg.norm(vertices_m - sensor_scene.rest_vertices_m[None], axis=2).max(axis=1)
     todo = np.flatnonzero(lit & ~same)
     traced = todo if tier == "path" else np.array([], int)
     if tier == "transport":
@@ -140,9 +142,8 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
             raise ValueError("the transport tier needs the sheet's TransportMatrix (trace_transport)")
         if transport.n_vertices != sensor_scene.n_vertices or (transport.height_px, transport.width_px) != (view.height_px, view.width_px):
             raise ValueError("the TransportMatrix was traced for another sheet or view: trace it again")
-        if path_above_m is not None and vertices_m is not None and len(todo):
-            moved = np.linalg.norm(vertices_m[todo] - sensor_scene.rest_vertices_m[None], axis=2).max(axis=1)
-            traced, todo = todo[moved > path_above_m], todo[moved <= path_above_m]
+        if path_above_m is not None and vertices_m is not None:
+            traced, todo = todo[moved_m[todo] > path_above_m], todo[moved_m[todo] <= path_above_m]
         t0 = time.perf_counter()
         if len(todo):
             out[todo] = transport.apply(e[todo])
@@ -165,6 +166,8 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
     if tier == "transport":
         result.info["path_frames"] = [int(f) for f in traced]
         result.info["path_spp"] = int(spp)
+    if vertices_m is not None:
+        result.info["sheet_displacement_mm"] = [round(float(d) * 1e3, 4) for d in moved_m]
     return result
 
 

@@ -42,7 +42,6 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 import numpy as np
-from scipy import constants
 from scipy.integrate import trapezoid
 
 __all__ = [
@@ -55,6 +54,8 @@ __all__ = [
     "Leak",
     "leak_through_layers",
     "lamp_position_m",
+    "lamp_above_tips_m",
+    "leaked_photon_sd",
 ]
 
 #: Typical luminous efficacy (lm per electrical W) of each lamp type [DOE2016]: the daylight tube
@@ -82,10 +83,11 @@ def radiant_power_w(lamp: str, electrical_w: float, efficacy_lm_per_w: float | N
 
 def lamp_position_m(scene) -> np.ndarray:
     """(3,) the ambient lamp's position: ``ambient.height_m`` above the rods' tips, at ``offset_mm``."""
-    return _above_tips(scene, scene.ambient.height_m, scene.ambient.offset_mm)
+    return lamp_above_tips_m(scene, scene.ambient.height_m, scene.ambient.offset_mm)
 
 
-def _above_tips(scene, height_m: float, offset_mm=(0.0, 0.0)) -> np.ndarray:
+def lamp_above_tips_m(scene, height_m: float, offset_mm=(0.0, 0.0)) -> np.ndarray:
+    """(3,) a lamp ``height_m`` above the rods' tips, at ``offset_mm`` (x, y) from the array's centre."""
     s = scene.sensor
     top_m = (s.base.thickness_mm + s.rod.height_mm) * 1e-3
     return np.array([offset_mm[0] * 1e-3, offset_mm[1] * 1e-3, top_m + height_m], dtype=float)
@@ -127,12 +129,8 @@ def lamp_visibility(sensor_scene, points_m, normals, lamp_m, offset_m: float = 1
 def photons_per_joule_through(lamp: str, absorber: str, absorber_thickness_mm: float | None = None) -> float:
     """Photons passing the absorber per joule of lamp light reaching it:
     integral( p_lamp(lambda) lambda / (h c) T_abs(lambda) dlambda ), p_lamp normalised to 1 W."""
-    from mlsim import spectra
-
-    wl = spectra.wavelengths_nm()
-    p = np.asarray(spectra.lamp_sd(lamp).values, dtype=float)
-    t = np.asarray(spectra.absorber_transmittance_sd(absorber, absorber_thickness_mm).values, dtype=float)
-    return float(trapezoid(p * (wl * 1e-9) / (constants.h * constants.c) * t, wl))
+    sd = leaked_photon_sd(lamp, absorber, absorber_thickness_mm)
+    return float(trapezoid(np.asarray(sd.values, dtype=float), np.asarray(sd.wavelengths, dtype=float)))
 
 
 def leaked_photon_sd(lamp: str, absorber: str, absorber_thickness_mm: float | None = None):

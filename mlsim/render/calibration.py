@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["green_level_dn8", "brightness_to_match", "DEFAULT_PERCENTILE"]
+__all__ = ["green_level_dn8", "noiseless_dn8", "brightness_to_match", "DEFAULT_PERCENTILE"]
 
 DEFAULT_PERCENTILE = 99.5
 
@@ -36,8 +36,14 @@ def green_level_dn8(scene, radiance_frame, percentile: float = DEFAULT_PERCENTIL
     p = camera_params(scene)
     k_green = float(ml_channel_factors(scene)[1])
     electrons = np.percentile(np.asarray(radiance_frame, dtype=np.float64), percentile) * k_green * p.electrons_per_radiance_m2_sr_s
-    dn = electrons * p.effective_conversion_gain_dn_per_e * 10.0 ** (p.gain_db / 20.0) + p.black_level_dn
-    return float(min(dn, 2**p.adc_bits - 1) * 2.0 ** (8 - p.adc_bits))
+    return noiseless_dn8(p, electrons)
+
+
+def noiseless_dn8(params, electrons) -> float:
+    """The mean 8-bit level of a pixel collecting ``electrons`` (black level included, clipped at
+    full scale, not quantised): (e K 10^(gain_db / 20) + black) / 2^(adc_bits - 8)."""
+    dn = electrons * params.effective_conversion_gain_dn_per_e * 10.0 ** (params.gain_db / 20.0) + params.black_level_dn
+    return float(min(dn, 2**params.adc_bits - 1) * 2.0 ** (8 - params.adc_bits))
 
 
 def brightness_to_match(brightness_photons_per_m2: float, simulated_dn8: float, target_dn8: float, black_level_dn8: float) -> float:

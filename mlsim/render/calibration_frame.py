@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mlsim.render.calibration import noiseless_dn8
+
 __all__ = ["CalibrationFrame", "calibration_frame", "auto_exposure_s", "write_calibration", "PERCENTILE", "MAX_AUTO_GAIN_DB"]
 
 PERCENTILE = 99.5
@@ -68,8 +70,7 @@ def auto_exposure_s(params, green_electrons_per_s, target_dn8: float, percentile
     exposure = min(needed_e / rate, 1.0 / params.fps)
     extra_db = min(max(20.0 * np.log10(needed_e / (rate * exposure)), 0.0), MAX_AUTO_GAIN_DB)
     gain_db = params.gain_db + extra_db
-    level = rate * exposure * dn_per_e * 10.0 ** (extra_db / 20.0) + params.black_level_dn
-    return exposure, float(gain_db), float(min(level, 2**params.adc_bits - 1) / scale)
+    return exposure, float(gain_db), noiseless_dn8(replace(params, gain_db=gain_db), rate * exposure)
 
 
 def calibration_frame(scene, patches, sensor_scene, transport=None) -> CalibrationFrame:
@@ -81,7 +82,7 @@ def calibration_frame(scene, patches, sensor_scene, transport=None) -> Calibrati
     from mlsim.render.optics import camera_params, channel_factors_of
 
     c = scene.calibration
-    lamp_m = ambient._above_tips(scene, c.height_m)
+    lamp_m = ambient.lamp_above_tips_m(scene, c.height_m)
     leak = ambient.leak_through_layers(scene, patches, sensor_scene, lamp=c.lamp, power_w=c.power_w, lamp_m=lamp_m, absorber="none",
                                        occlusion=scene.ambient.occlusion)
     spec = scene.fidelity.render
