@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TaxelIndex", "taxel_index", "taxel_sums", "taxel_features", "FEATURES"]
+__all__ = ["TaxelIndex", "taxel_index", "taxel_sums", "taxel_features", "with_omega_rad", "FEATURES"]
 
 #: The columns of Z_n.
 FEATURES = ("H", "l_px", "omega_deg")
@@ -71,3 +71,12 @@ def taxel_features(H, Sx, Sy, centres_px, firing) -> np.ndarray:
         z[ok, 1] = np.hypot(dx, dy)
         z[ok, 2] = np.degrees(np.arctan2(-dy, dx)) % 360.0
     return z
+
+
+def with_omega_rad(features) -> np.ndarray:
+    """Features (..., 3) with omega in degrees in [0, 360) -> float32 copies with omega in rad in
+    (-pi, pi] (datasets and the classifier use radians; zeros stay zeros)."""
+    out = np.array(features, dtype=np.float32)
+    omega = np.radians(out[..., 2])
+    out[..., 2] = np.where(omega > np.pi, omega - 2.0 * np.pi, omega)
+    return out

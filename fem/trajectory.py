@@ -11,6 +11,8 @@ turned by its ``yaw_deg``. Segments run one after another:
   until a ``release`` or a depth-controlled ``press``;
 - ``slide``: sideways by ``distance_mm`` along ``direction_deg`` at ``speed_mm_s``, at constant
   height (or force);
+- a force ramp with ``keep = "height"`` hands over to displacement control once it ends: later
+  segments keep the height it reached (a clamp that locks) instead of its force;
 - ``rotate``: about the vertical axis through the indenter's reference point, by ``angle_deg``;
 - ``hold``: nothing moves;
 - ``release``: up by ``distance_mm`` (displacement control from there on).
@@ -110,6 +112,14 @@ def _move(state: IndenterState, seg, dt: float) -> IndenterState:
     return state  # hold
 
 
+def _locks_height(load, k: int) -> bool:
+    """Whether the last force ramp before segment ``k`` keeps its height (``keep = "height"``)."""
+    for seg in reversed(load.segments[:k]):
+        if seg.kind == "press" and seg.force_n is not None:
+            return seg.keep == "height"
+    return False
+
+
 def advance(load, state: IndenterState, t_new: float, force_now_n: float = 0.0) -> IndenterState:
     """The indenter's state at ``t_new`` >= ``state.t_s``, walking through segment boundaries.
 
@@ -123,6 +133,8 @@ def advance(load, state: IndenterState, t_new: float, force_now_n: float = 0.0) 
         if k < 0:  # after the last segment the indenter stays put
             break
         seg = load.segments[k]
+        if s.force_target_n is not None and not (seg.kind == "press" and seg.force_n is not None) and _locks_height(load, k):
+            s = replace(s, force_target_n=None, ramp_from_n=None)  # the clamp locks where its ramp ended
         t_next = min(end, t_new)
         s = _move(s, seg, t_next - t)
         if seg.kind == "press" and seg.force_n is not None:

@@ -1,4 +1,4 @@
-"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient``.
+"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | train | evaluate | ablation``.
 
 Exit codes: 0 success, 2 bad input (an invalid scene or argument; the message names the field),
 1 failure (a stage could not finish; the message says what to try). Unexpected errors are bugs:
@@ -8,6 +8,7 @@ they print a traceback and exit 1.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tomllib
 from pathlib import Path
@@ -248,6 +249,31 @@ def cmd_ambient(args) -> int:
     return EXIT_OK
 
 
+def cmd_dataset(args) -> int:
+    from mlsim.dataset.generate import generate
+    from mlsim.dataset.spec import load_dataset_spec
+    from mlsim.dataset.store import DatasetMismatch
+
+    overrides = {k: v for k, v in (("samples_per_action", args.samples_per_action), ("people", args.people), ("seed", args.seed)) if v is not None}
+    spec, base = load_dataset_spec(args.spec, overrides)
+    if args.executor == "local" and args.address:
+        raise SceneError([Problem("--address", args.address, "only with --executor ray")])
+    out = Path(args.out) if args.out else Path("out") / spec.name
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    try:
+        summary = generate(spec, base, out, workers=args.workers, executor=args.executor, address=args.address, cache_dir=args.cache,
+                           progress=not args.quiet, log=log)
+    except DatasetMismatch as exc:
+        raise SceneError([Problem("--out", str(out), str(exc))]) from None
+    except KeyboardInterrupt:
+        print(f"interrupted: the finished episodes are stored in {out}; rerun the same command to complete the dataset", file=sys.stderr)
+        return 130
+    print(f"{summary['episodes_stored']}/{summary['episodes_planned']} episodes in {out} "
+          f"({summary['episodes_run_now']} now in {summary['episodes_wall_s']} s, {summary['episodes_per_s']} episodes/s; "
+          f"precompute {summary['precompute_s']} s)")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mlsim", description="Simulate the mechanoluminescent visuotactile sensor.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -307,6 +333,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output directory (default out/<scene name>_ambient)")
     p.add_argument("--cache", help="cache directory")
     p.set_defaults(func=cmd_ambient)
+
+    p = sub.add_parser("dataset", help="generate a synthetic interaction dataset (episodes in parallel; resumable; Zarr)")
+    p.add_argument("spec", help="dataset spec (TOML), e.g. scenes/interactions/paper.toml")
+    p.add_argument("--out", help="output directory (default out/<spec name>); a rerun into it resumes")
+    p.add_argument("--workers", type=int, default=max(1, os.cpu_count() or 1), help="worker processes (default: the CPU count)")
+    p.add_argument("--executor", choices=["local", "ray"], default="local", help="local process pool, or Ray (pip install 'mlsim[ray]')")
+    p.add_argument("--address", help="Ray cluster address, e.g. 127.0.0.1:6379 (default: start a local Ray)")
+    p.add_argument("--samples-per-action", type=int, help="override the spec's samples_per_action")
+    p.add_argument("--people", type=int, help="override the spec's people")
+    p.add_argument("--seed", type=int, help="override the spec's seed")
+    p.add_argument("--cache", help="cache directory for the sensor's precomputes")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
+    p.set_defaults(func=cmd_dataset)
+    try:
+        from classifiers.cli import add_parsers
+    except ImportError:
+        pass
+    else:
+        add_parsers(sub)
     return parser
 
 

@@ -21,6 +21,7 @@ import os
 import shutil
 import tempfile
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -183,18 +184,55 @@ def _solve_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     return run_episode(scene, mesh, reduced=reduced, progress=ctx.progress, log=ctx.log)
 
 
+# Per-sensor objects that episodes share (the ML sheet's patches and its Mitsuba scene, the reduced
+# model, the transport matrix), kept in this process: a worker running a dataset's episodes on one
+# sensor builds or loads each once instead of once per episode. Small: a few sensors' worth.
+_MEMO: OrderedDict = OrderedDict()
+_MEMO_ENTRIES = 8
+
+
+def _memo(key: tuple, build: Callable[[], Any]):
+    if key in _MEMO:
+        _MEMO.move_to_end(key)
+        return _MEMO[key]
+    value = build()
+    _MEMO[key] = value
+    while len(_MEMO) > _MEMO_ENTRIES:
+        _MEMO.popitem(last=False)
+    return value
+
+
 def _cached_precompute(ctx: "RunContext", stage: "Stage", payload: dict, build: Callable[[], Any], message: str):
     """A load-independent precompute (not a stage of the plan) from the cache by the hash of
     ``payload``, else ``build()`` and cache it: a dataset of episodes on one sensor pays once."""
     import hashlib
 
     key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
-    if ctx.cache.has(stage.name, key):
-        return ctx.cache.fetch(stage, key)
-    ctx.log(message)
-    result = build()
-    ctx.cache.store(stage, key, result)
-    return result
+
+    def load_or_build():
+        if ctx.cache.has(stage.name, key):
+            return ctx.cache.fetch(stage, key)
+        ctx.log(message)
+        result = build()
+        ctx.cache.store(stage, key, result)
+        return result
+
+    return _memo((stage.name, key, str(ctx.cache.root)), load_or_build)
+
+
+def _patches(scene: Scene, geometry, mesh):
+    """The ML sheet's emitting patches of this sensor and mesh (shared in-process)."""
+    from mlsim import emission
+
+    segments, edge_m = scene.fidelity.mesh.segments_per_circle, scene.fidelity.render.sheet_edge_mm * 1e-3
+    return _memo(("patches", stage_key(scene, "mesh"), segments, edge_m), lambda: emission.ml_patches(geometry, mesh, segments, edge_m))
+
+
+def _sheet(scene: Scene, patches):
+    """The Mitsuba scene of the sheet (shared in-process; render_frames returns it to its rest shape)."""
+    from mlsim import render
+
+    return _memo(("sheet", stage_key(scene, "mesh"), scene.content_hash(_VIEW_FIELDS)), lambda: render.sensor_scene_for(scene, patches))
 
 
 def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
@@ -320,7 +358,7 @@ def _emission_run(scene: Scene, inputs: dict, ctx: "RunContext"):
 
     geometry, (mesh, _), episode = inputs["geometry"], inputs["mesh"], inputs["solve"]
     spec = scene.emission
-    patches = emission.ml_patches(geometry, mesh, scene.fidelity.mesh.segments_per_circle, scene.fidelity.render.sheet_edge_mm * 1e-3)
+    patches = _patches(scene, geometry, mesh)
     params = emission.emission_model(spec.model).params_from(spec)
     scale = float(scene.material("ml_layer").relative_ml_peak.value) * float(phosphor_relative_brightness(scene.sensor.phosphor.loading_wt_pct))
     windows = exposure_windows_s(episode.n_frames, scene.camera.fps, scene.camera.exposure_ms * 1e-3)
@@ -371,7 +409,7 @@ _VIEW_FIELDS = _GEOMETRY_FIELDS + (
 )
 
 
-#: Pure transport (``transport_max_displacement_mm`` unset): above this sheet displacement (mm) the
+#: Pure transport (``transport_max_displacement_mm = "off"``): above this sheet displacement (mm) the
 #: run says that the matrix ignores the deformation.
 TRANSPORT_DEFORMATION_WARN_MM = 0.5
 
@@ -384,14 +422,20 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from mlsim import render
 
     em, episode = inputs["emission"], inputs["solve"]
-    sheet = render.sensor_scene_for(scene, em.patches)
+    sheet = _sheet(scene, em.patches)
     radiance = render.radiance_of(em.photons_per_s, em.patches.area_m2)
     spec = scene.fidelity.render
     transport = None
-    vertices = render.deformed_vertices(episode, em.patches.vertices_m)
+    import numpy as np
+
+    from fem.mesh import locate_points
+
+    located = _memo(("sheet_in_mesh", stage_key(scene, "mesh"), scene.content_hash(_VIEW_FIELDS)),
+                    lambda: locate_points(episode.mesh_points, episode.mesh_tets, np.asarray(em.patches.vertices_m, dtype=float)))
+    vertices = render.deformed_vertices(episode, em.patches.vertices_m, located)
     if spec.tier == "transport":
         transport = _cached_transport(scene, sheet, ctx)
-        limit_mm = spec.transport_max_displacement_mm
+        limit_mm = spec.path_above_mm
         result = render.render_frames(sheet, radiance, "transport", transport=transport, spp=spec.spp, seed=scene.seed, vertices_m=vertices,
                                       path_above_m=None if limit_mm is None else limit_mm * 1e-3, progress=ctx.progress)
         result.info.update(transport_spp=transport.spp, transport_nnz=int(transport.matrix.nnz),
@@ -454,12 +498,11 @@ def _render_summary(result) -> dict:
 
 
 def _calibration_run(scene: Scene, inputs: dict, ctx: "RunContext"):
-    from mlsim import emission, render
     from mlsim.render.calibration_frame import calibration_frame
 
     geometry, (mesh, _) = inputs["geometry"], inputs["mesh"]
-    patches = emission.ml_patches(geometry, mesh, scene.fidelity.mesh.segments_per_circle, scene.fidelity.render.sheet_edge_mm * 1e-3)
-    sheet = render.sensor_scene_for(scene, patches)
+    patches = _patches(scene, geometry, mesh)
+    sheet = _sheet(scene, patches)
     transport = _cached_transport(scene, sheet, ctx) if scene.fidelity.render.tier == "transport" else None
     return calibration_frame(scene, patches, sheet, transport)
 
@@ -481,6 +524,33 @@ def _dllm_run(scene: Scene, inputs: dict, ctx: "RunContext"):
 
 def _dllm_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
     from dllm.episode import write
+
+    return write(result, out_dir)
+
+
+def _classify_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from classifiers.closed_loop import run_loop
+    from classifiers.train import load_model
+    from dllm.detector import DllmParams
+    from dllm.episode import calibrate_scene
+    from mlsim.render.output import idle_frames
+
+    model = load_model(scene.classify.model)
+    calibration, _ = calibrate_scene(scene, inputs["calibration"].rgb)
+    idle = idle_frames(scene, inputs["render"], max(int(round(scene.dllm.init_s * scene.camera.fps)), 1))
+    result = run_loop(inputs["camera"].frames, idle, calibration, DllmParams.from_scene(scene), model, scene.camera.fps, scene.classify.stride)
+    for i in range(len(result.classes)):
+        if result.classes[i] >= 0:
+            ctx.log(f"[classify] t = {result.t_end_s[i]:6.3f} s  {result.names[i]:<14} p {result.probability[i]:.2f}  -> "
+                    f"{result.commands[i]:<12} latency {result.latency_ms[i]:.2f} ms")
+    s = result.summary()
+    ctx.log(f"[classify] {s['active_windows']} of {s['windows']} windows active (the others idle: no DLLM event); "
+            f"latency median {s['latency_ms_median']:.2f} ms, max {s['latency_ms_max']:.2f} ms from a window's last frame to its prediction")
+    return result
+
+
+def _classify_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from classifiers.closed_loop import write
 
     return write(result, out_dir)
 
@@ -574,7 +644,7 @@ _STAGE_LIST = [
     Stage(
         name="camera",
         doc="8-bit RGB camera frames (radiometry, spectra, noise, ADC); writes an MP4, PNG frames, a contact sheet and a per-frame CSV",
-        reads=("camera", "optics", "sensor", "ambient", "seed"),
+        reads=("camera", "optics", "sensor", "ambient", "seed", "noise_seed"),
         needs=("render", "emission"),
         run=_camera_run,
         save=_camera_save,
@@ -597,12 +667,22 @@ _STAGE_LIST = [
         name="dllm",
         doc="the DLLM detector (SPEC 1.6) on the camera frames: calibration on the calibration frame, thresholds from 1 s of idle frames; "
             "writes the feature time series, the events table and a taxel heatmap",
-        reads=("dllm", "camera", "ambient", "optics", "sensor", "seed"),
+        reads=("dllm", "camera", "ambient", "optics", "sensor", "seed", "noise_seed"),
         needs=("camera", "calibration", "render"),
         run=_dllm_run,
         save=_dllm_save,
         load=_dllm_load,
         write=_dllm_write,
+        summarize=lambda result: result.summary(),
+    ),
+    Stage(
+        name="classify",
+        doc="the closed robot loop (SPEC 1.7): the streaming DLLM and the interaction CNN on the last 8 frames; prints a class and a "
+            "robot command per window and the latency to each prediction; writes classify.csv (not cached: the model file may change)",
+        reads=("classify", "dllm", "camera", "ambient", "optics", "sensor", "seed", "noise_seed"),
+        needs=("camera", "calibration", "render"),
+        run=_classify_run,
+        write=_classify_write,
         summarize=lambda result: result.summary(),
     ),
     Stage(
@@ -636,8 +716,14 @@ def default_cache_dir() -> Path:
 class Cache:
     """Stage results on disk, one directory per (stage, key), written atomically (rename)."""
 
-    def __init__(self, root: str | Path | None = None):
+    def __init__(self, root: str | Path | None = None, keep: tuple[str, ...] | None = None):
+        """``keep``: store only these stages' results (None: all). A dataset keeps the per-sensor
+        stages and precomputes and not each episode's intermediates."""
         self.root = Path(root) if root is not None else default_cache_dir()
+        self.keep = None if keep is None else frozenset(keep)
+
+    def keeps(self, stage: str) -> bool:
+        return self.keep is None or stage in self.keep
 
     def path(self, stage: str, key: str) -> Path:
         return self.root / stage / key
@@ -762,7 +848,7 @@ def run(scene: Scene, out_dir: str | Path | None = None, cache: Cache | None = N
         else:
             log(f"[{st.name}] running")
             results[st.name] = st.run(scene, {n: results[n] for n in st.needs}, ctx)
-            if st.save is not None:
+            if st.save is not None and cache.keeps(st.name):
                 cache.store(st, step.key, results[st.name])
         seconds[st.name] = time.perf_counter() - t0
         if step.requested and out is not None and st.write is not None:
@@ -793,16 +879,19 @@ def _summary(scene, steps, results, seconds, files, scene_path) -> dict:
             }
             for s in steps
         },
-        "versions": _versions(),
+        "versions": package_versions(),
     }
 
 
-def _versions() -> dict:
+def package_versions() -> dict:
+    """The Python version and the versions of the packages results depend on (for run summaries
+    and dataset metadata)."""
     import platform
     from importlib import metadata
 
     out = {"python": platform.python_version()}
-    for pkg in ("numpy", "scipy", "pydantic", "trimesh", "manifold3d", "pytetwild", "meshio"):
+    for pkg in ("mlsim", "numpy", "scipy", "pydantic", "trimesh", "manifold3d", "pytetwild", "meshio", "scikit-fem", "pypardiso", "mitsuba",
+                "drjit", "colour-science", "opencv-contrib-python-headless", "torch", "zarr"):
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:

@@ -201,6 +201,9 @@ class PressSegment(_Model):
     force_n: Pos | None = None
     speed_mm_s: Pos | None = None
     duration_s: Pos | None = None
+    # After a force ramp, what the later segments keep: the force (a compliant gripper) or the
+    # height the ramp reached (a clamp that locks, e.g. a servo holding its angle).
+    keep: Literal["force", "height"] = "force"
 
     @model_validator(mode="after")
     def _control(self):
@@ -210,6 +213,8 @@ class PressSegment(_Model):
             raise ValueError("with depth_mm give exactly one of speed_mm_s or duration_s")
         if self.force_n is not None and (self.duration_s is None or self.speed_mm_s is not None):
             raise ValueError("with force_n give duration_s (the ramp time) and no speed_mm_s")
+        if self.depth_mm is not None and self.keep != "force":
+            raise ValueError('keep applies to a force ramp (force_n); remove it from a depth-controlled press')
         return self
 
     @property
@@ -439,6 +444,15 @@ class DllmSpec(_Model):
     recover_s: Pos = 5.0
 
 
+class ClassifySpec(_Model):
+    """The closed robot loop of SPEC 1.7 (``outputs = ["classify"]``): the camera frames through the
+    streaming DLLM and the interaction CNN on the last 8 frames, a prediction and a robot command per
+    window (:mod:`classifiers.closed_loop`)."""
+
+    model: str | None = None  # a model file of `mlsim train` (e.g. out/interaction_train/interaction_8class.pt)
+    stride: Annotated[int, Strict(), Field(ge=1, le=1000)] = 1  # frames between decisions
+
+
 # ------------------------------------------------------------------------------------- fidelity
 class MeshFidelity(_Model):
     """Tetrahedral meshing (fTetWild via pytetwild).
@@ -494,8 +508,14 @@ class RenderFidelity(_Model):
     transport_drop: Annotated[float, Strict(), Field(ge=0.0, lt=1.0)] = 1e-4
     # The matrix is of the rest shape. Frames in which the ML layer moved further than this are
     # path-traced at `spp` instead: on the default demo, rest-shape transport stayed within 3 % per
-    # rod up to 0.8 mm and was 10-45 % off on the slide (1-2.6 mm). None: every frame from the matrix.
-    transport_max_displacement_mm: Annotated[float, Strict(), Field(gt=0.0)] | None = 0.5
+    # rod up to 0.8 mm and was 10-45 % off on the slide (1-2.6 mm). "off": every frame from the matrix.
+    # "off": pure transport (a dataset at the fast tiers; the run log says how far the sheet moved).
+    transport_max_displacement_mm: Annotated[float, Strict(), Field(gt=0.0)] | Literal["off"] = 0.5
+
+    @property
+    def path_above_mm(self) -> float | None:
+        """The displacement above which a transport-tier frame is path-traced; None: never."""
+        return None if self.transport_max_displacement_mm == "off" else self.transport_max_displacement_mm
     max_depth: Annotated[int, Strict(), Field(ge=3, le=64)] = 12  # camera, acrylic, core: 3 vertices reach the sheet
     rr_depth: Annotated[int, Strict(), Field(ge=1, le=64)] = 5  # Russian roulette from this depth on
 
@@ -516,6 +536,10 @@ class Scene(_Model):
     name: str = "unnamed"
     description: str = ""
     seed: Annotated[int, Strict(), Field(ge=0, lt=2**63)] = 0
+    # The camera's noise stream (episode frames and the idle frames before them); None: from `seed`.
+    # A dataset varies it per episode and keeps `seed`, which also seeds the sensor's precomputes
+    # (the reduced tier's patches, the transport matrix, the calibration frame), so they are shared.
+    noise_seed: Annotated[int, Strict(), Field(ge=0, lt=2**63)] | None = None
     sensor: SensorSpec = SensorSpec()
     materials: dict[str, MaterialOverride] = {}
     load: LoadSpec | None = None
@@ -525,6 +549,7 @@ class Scene(_Model):
     ambient: AmbientSpec = AmbientSpec()
     calibration: CalibrationSpec = CalibrationSpec()
     dllm: DllmSpec = DllmSpec()
+    classify: ClassifySpec = ClassifySpec()
     fidelity: FidelitySpec = FidelitySpec()
     verify_s2: VerifyS2Spec | None = None
     outputs: tuple[str, ...] = ("mesh",)
@@ -680,8 +705,12 @@ def check_consistency(scene: Scene) -> list[Problem]:
     for i, out in enumerate(scene.outputs):
         if out not in OUTPUTS:
             problems.append(Problem(f"outputs[{i}]", out, f"unknown output; choose from: {', '.join(OUTPUTS)}"))
-        elif out in ("solve", "emission", "render", "camera", "dllm") and scene.load is None:
+        elif out in ("solve", "emission", "render", "camera", "dllm", "classify") and scene.load is None:
             problems.append(Problem(f"outputs[{i}]", out, f"the {out} stage needs a [load] section (an indenter and its segments)"))
+        elif out == "classify" and scene.classify.model is None:
+            problems.append(Problem("classify.model", None, "the closed loop needs a trained model: make one with "
+                                    "'mlsim dataset scenes/interactions/paper.toml --out DATA' and 'mlsim train DATA --out DIR', "
+                                    "then give DIR/interaction_8class.pt"))
         elif out == "verify_s2" and scene.verify_s2 is None:
             problems.append(Problem(f"outputs[{i}]", out, "the verification needs a [verify_s2] section (see scenes/verify_fem_s2.toml)"))
     if scene.load is not None:

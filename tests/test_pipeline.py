@@ -38,25 +38,26 @@ def test_keys_follow_exactly_the_fields_a_stage_reads():
     assert stage_key(scene.with_values({"fidelity.mesh.timeout_s": 30.0}), "mesh") == mesh_key
     taller = scene.with_values({"sensor.rod.height_mm": 12.0})
     assert stage_key(taller, "mesh") != mesh_key
-    assert invalidated(scene, taller) == ["geometry", "mesh", "solve", "emission", "render", "camera", "calibration", "dllm"]
+    assert invalidated(scene, taller) == ["geometry", "mesh", "solve", "emission", "render", "camera", "calibration", "dllm", "classify"]
     # the trap constants change the light, not the stress; the camera's gain changes neither
-    assert invalidated(scene, scene.with_values({"emission.recovery_time_s": 2.0})) == ["emission", "render", "camera", "dllm"]
+    assert invalidated(scene, scene.with_values({"emission.recovery_time_s": 2.0})) == ["emission", "render", "camera", "dllm", "classify"]
     assert "emission" not in invalidated(scene, scene.with_values({"camera.gain_db": 6.0}))
-    assert invalidated(scene, scene.with_values({"camera.exposure_ms": 20.0})) == ["emission", "render", "camera", "calibration", "dllm"]
+    assert invalidated(scene, scene.with_values({"camera.exposure_ms": 20.0})) == ["emission", "render", "camera", "calibration", "dllm", "classify"]
     assert invalidated(scene, scene.with_values({"fidelity.mesh.edge_length_mm": 1.5})) == ["mesh", "solve", "emission", "render", "camera",
-                                                                                           "calibration", "dllm"]
-    assert invalidated(scene, scene.with_values({"camera.gain_db": 3.0})) == ["camera", "calibration", "dllm"]  # the frames only
+                                                                                           "calibration", "dllm", "classify"]
+    assert invalidated(scene, scene.with_values({"camera.gain_db": 3.0})) == ["camera", "calibration", "dllm", "classify"]  # the frames only
     # the lamp's flicker changes the frames, not the image of its leak; the lamp itself changes both
-    assert invalidated(scene, scene.with_values({"ambient.flicker_hz": 100.0})) == ["camera", "dllm"]
-    assert invalidated(scene, scene.with_values({"ambient.lamp": "daylight"})) == ["render", "camera", "dllm"]
-    assert invalidated(scene, scene.with_values({"calibration.height_m": 0.3})) == ["calibration", "dllm"]
-    assert invalidated(scene, scene.with_values({"dllm.alpha": 1.1})) == ["dllm"]  # the detector only
+    assert invalidated(scene, scene.with_values({"ambient.flicker_hz": 100.0})) == ["camera", "dllm", "classify"]
+    assert invalidated(scene, scene.with_values({"ambient.lamp": "daylight"})) == ["render", "camera", "dllm", "classify"]
+    assert invalidated(scene, scene.with_values({"calibration.height_m": 0.3})) == ["calibration", "dllm", "classify"]
+    assert invalidated(scene, scene.with_values({"dllm.alpha": 1.1})) == ["dllm", "classify"]  # the detector only
+    assert invalidated(scene, scene.with_values({"classify.stride": 2})) == ["classify"]  # the closed loop only
     # the solve reads the materials, the load, the frame rate and its own fidelity, not the mesh knobs
-    assert invalidated(scene, scene.with_values({"sensor.materials.core": "PDMS"})) == ["solve", "emission", "render", "camera", "dllm"]
+    assert invalidated(scene, scene.with_values({"sensor.materials.core": "PDMS"})) == ["solve", "emission", "render", "camera", "dllm", "classify"]
     assert invalidated(scene, scene.with_values({"camera.fps": 60.0, "camera.exposure_ms": 10.0})) == ["solve", "emission", "render", "camera",
-                                                                                                         "calibration", "dllm"]
-    assert invalidated(scene, scene.with_values({"load.friction_coefficient": 0.3})) == ["solve", "emission", "render", "camera", "dllm"]
-    assert invalidated(scene, scene.with_values({"fidelity.solve.substeps": 2})) == ["solve", "emission", "render", "camera", "dllm"]
+                                                                                                         "calibration", "dllm", "classify"]
+    assert invalidated(scene, scene.with_values({"load.friction_coefficient": 0.3})) == ["solve", "emission", "render", "camera", "dllm", "classify"]
+    assert invalidated(scene, scene.with_values({"fidelity.solve.substeps": 2})) == ["solve", "emission", "render", "camera", "dllm", "classify"]
 
 
 _PROBE = """

@@ -85,16 +85,18 @@ def sensor_scene_for(scene, patches) -> SensorScene:
                        max_depth=r.max_depth, rr_depth=r.rr_depth)
 
 
-def deformed_vertices(episode, vertices_m) -> np.ndarray:
+def deformed_vertices(episode, vertices_m, located: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The sheet's vertices (N, 3) moved by the FEM displacement at each frame: (F, N, 3) m.
 
     The displacement is interpolated linearly in the tet of the solve's mesh that holds each vertex
     (:func:`fem.mesh.locate_points`; a vertex on the curved core boundary just outside the straight
-    tets takes its nearest tet's extrapolation)."""
+    tets takes its nearest tet's extrapolation). ``located``: that function's (tet, barycentric)
+    result for these vertices on this mesh, when the caller already has it (it depends on the
+    mesh and the sheet only, not on the episode)."""
     from fem.mesh import locate_points
 
     V = np.asarray(vertices_m, dtype=float)
-    tet, bary = locate_points(episode.mesh_points, episode.mesh_tets, V)
+    tet, bary = located if located is not None else locate_points(episode.mesh_points, episode.mesh_tets, V)
     corners = episode.mesh_tets[tet]  # (N, 4)
     u = episode.displacement[episode.frame_step]  # (F, P, 3)
     return V[None] + np.einsum("nk,fnkd->fnd", bary, u[:, corners, :].astype(float))
@@ -151,13 +153,17 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
     if len(traced):
         from tqdm.auto import tqdm
 
-        for f in tqdm(traced, desc="path tracing", unit="frame", disable=None if progress else True, leave=False):
-            t0 = time.perf_counter()
-            if vertices_m is not None:
-                sensor_scene.set_vertices(vertices_m[f])
-            sensor_scene.set_radiance(e[f])
-            out[f] = sensor_scene.render(spp, _frame_seed(seed, f))
-            seconds[f] = time.perf_counter() - t0
+        try:
+            for f in tqdm(traced, desc="path tracing", unit="frame", disable=None if progress else True, leave=False):
+                t0 = time.perf_counter()
+                if vertices_m is not None:
+                    sensor_scene.set_vertices(vertices_m[f])
+                sensor_scene.set_radiance(e[f])
+                out[f] = sensor_scene.render(spp, _frame_seed(seed, f))
+                seconds[f] = time.perf_counter() - t0
+        finally:
+            if vertices_m is not None:  # the sheet is shared (the ambient still, the next episode): back to rest
+                sensor_scene.set_vertices(sensor_scene.rest_vertices_m)
     rendered[todo] = True
     rendered[traced] = True
     for f in np.flatnonzero(same):  # in order, so a run of repeats copies its first frame

@@ -139,7 +139,7 @@ def render_accuracy(scene, spps=(1, 4, 16, 64), transport_spps=(16, 64), referen
             seconds.append((time.perf_counter() - t0) / len(chosen))
         rows.append(RenderRow("transport", int(spp), False, float(np.median(seconds)) * 1e3, trace_s,
                               _errors(mono[..., None] * k, reference, masks)))
-        limit_mm = scene.fidelity.render.transport_max_displacement_mm
+        limit_mm = scene.fidelity.render.path_above_mm
         if limit_mm is not None:  # the tier as shipped: frames where the sheet moved more are path-traced
             log(f"[accuracy] transport traced at {spp} spp, path-tracing frames that moved > {limit_mm:g} mm")
             t0 = time.perf_counter()

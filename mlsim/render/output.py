@@ -79,6 +79,11 @@ def disk_masks(height_px: int, width_px: int, centres_px, radius_px: float) -> n
     return (cols[None] - c[:, 0, None, None]) ** 2 + (rows[None] - c[:, 1, None, None]) ** 2 <= radius_px**2
 
 
+def noise_seed(scene) -> int:
+    """The seed of the camera's noise streams: ``scene.noise_seed``, else ``scene.seed``."""
+    return scene.seed if scene.noise_seed is None else scene.noise_seed
+
+
 def expose(scene, render_result, emission_result) -> CameraFrames:
     """The camera stage: 8-bit frames of a :class:`mlsim.render.RenderResult` (module docstring),
     with the ambient lamp's leak (``render_result.ambient``) at its level in each exposure."""
@@ -89,7 +94,7 @@ def expose(scene, render_result, emission_result) -> CameraFrames:
     params = camera_params(scene)
     camera = Camera(params)
     k = ml_channel_factors(scene).astype(np.float32)  # electrons per photon, R G B
-    rng = np.random.default_rng([scene.seed, 0xCA3E7A])  # the camera's own stream
+    rng = np.random.default_rng([noise_seed(scene), 0xCA3E7A])  # the camera's own stream
     rad = render_result.radiance
     F, H, W = rad.shape
     windows = emission_result.windows_s
@@ -126,7 +131,7 @@ def idle_frames(scene, render_result, n_frames: int, start_s: float | None = Non
     windows = np.asarray(camera.exposure_windows_s(n_frames)) + start
     ambient, level, k_amb = _ambient_terms(scene, render_result, windows)
     H, W = render_result.radiance.shape[1:]
-    rng = np.random.default_rng([scene.seed, 0x1D1E, int(stream)])
+    rng = np.random.default_rng([noise_seed(scene), 0x1D1E, int(stream)])
     out = np.empty((n_frames, H, W, 3), np.uint8)
     dark = np.zeros((H, W, 3), np.float32)
     for f in range(n_frames):

@@ -1,0 +1,1 @@
+"""Synthetic datasets of sensor episodes: generation, storage, reading."""

@@ -1,0 +1,191 @@
+"""Generate an interaction dataset: every episode of a spec through the pipeline, in parallel.
+
+``mlsim dataset SPEC --out DIR --workers N [--executor ray --address HOST:PORT]``:
+
+1. the plan: the spec's people (:func:`mlsim.interactions.draw_people`) and, for each action, its
+   samples spread evenly over the people, each drawn from its own seeded stream, with its own camera
+   noise seed. Everything follows from ``spec.seed``; an episode's draws depend only on (seed,
+   action, sample index), so a larger dataset extends a smaller one of the same seed;
+2. the episodes already stored in ``DIR`` are skipped (a rerun after a kill resumes);
+3. the driver runs the sensor's precomputes once (mesh, reduced model, transport matrix, calibration
+   frame; cached on disk), then the workers run the episodes (:func:`run_episode_job`: the pipeline
+   to the DLLM at the base scene's tiers, single-threaded), and the driver writes each episode as
+   it arrives, atomically (:mod:`mlsim.dataset.store`), with a progress bar (rate and ETA);
+4. ``DIR/dataset.json`` (counts, timings, versions) and the dataset card ``DIR/README.md``.
+
+Same spec and seed, same features: the workers run one thread each (BLAS reductions keep their
+order) and every random draw is seeded. The mesh is part of the sensor's cache: fTetWild does not
+give the same mesh twice, so two machines with separately built meshes give datasets that differ
+in the last bits; ``dataset.json`` records the mesh's cache key and the card says so.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from mlsim.dataset import store
+from mlsim.dataset.spec import DatasetSpec
+from mlsim.interactions import ACTION_TO_4, ACTIONS, InteractionSpec, Sample, draw_people, draw_sample, frame_labels, interaction_scene
+from mlsim.scene import Scene, scene_from_dict
+
+__all__ = ["plan_episodes", "run_episode_job", "generate", "CACHE_KEEP"]
+
+#: The stages a dataset keeps in the cache: the sensor's, shared by every episode (each episode's
+#: own intermediate results are not written to disk).
+CACHE_KEEP = ("geometry", "mesh", "calibration", "reduced_model", "transport_matrix")
+
+
+def _seed_int(*parts: int) -> int:
+    """A 63-bit seed from integer parts (numpy's SeedSequence mixing)."""
+    a, b = np.random.SeedSequence([int(p) for p in parts]).generate_state(2, dtype=np.uint32)
+    return int((int(a) << 31) ^ int(b)) & (2**63 - 1)
+
+
+def plan_episodes(spec: DatasetSpec) -> tuple[list[dict], list[dict]]:
+    """(episodes, people): one small dict per episode (its id, action, label, person, sample,
+    noise seed) and the people's typical values. Pure: the same spec gives the same plan."""
+    people = draw_people(spec.people, spec.interaction, np.random.default_rng([spec.seed, 1]))
+    width = max(5, len(str(spec.samples_per_action - 1)))
+    jobs = []
+    for action in spec.actions:
+        a = ACTIONS.index(action)
+        for k in range(spec.samples_per_action):
+            person = people[k % spec.people]
+            sample = draw_sample(action, person, spec.interaction, np.random.default_rng([spec.seed, 2, a, k]))
+            jobs.append({"episode_id": f"{action}_{k:0{width}d}", "action": action, "label": a, "label_4": ACTION_TO_4[action],
+                         "person": person.index, "sample_index": k, "sample": sample.as_dict(), "noise_seed": _seed_int(spec.seed, 3, a, k)})
+    return jobs, [vars(p) for p in people]
+
+
+# ------------------------------------------------------------------------------------ the worker
+_BASE: dict[str, Scene] = {}
+
+
+def _base_scene(data: dict) -> Scene:
+    key = json.dumps(data, sort_keys=True)
+    if key not in _BASE:
+        _BASE.clear()
+        _BASE[key] = scene_from_dict(data, source="dataset base scene")
+    return _BASE[key]
+
+
+def episode_scene(job: dict) -> Scene:
+    """The scene of one planned episode (``job`` from :func:`plan_episodes` plus the base scene,
+    the interaction spec)."""
+    base = _base_scene(job["base_scene"])
+    return interaction_scene(base, Sample(**job["sample"]), InteractionSpec(**job["interaction"]), noise_seed=job["noise_seed"],
+                             name=job["episode_id"])
+
+
+def run_episode_job(job: dict) -> dict:
+    """One episode through the pipeline to the DLLM; returns {"arrays": ..., "attrs": ...} for the store.
+
+    ``job``: a plan entry plus ``base_scene`` (a scene dict), ``interaction`` (an InteractionSpec dict),
+    ``cache_dir`` and ``store_frames``."""
+    from dllm.features import with_omega_rad
+    from fem.geometry import RodArray
+    from mlsim import pipeline
+
+    scene = episode_scene(job)
+    spec = InteractionSpec(**job["interaction"])
+    t0 = time.perf_counter()
+    result = pipeline.run(scene, cache=pipeline.Cache(job["cache_dir"], keep=CACHE_KEEP), outputs=("dllm",), progress=False, log=lambda _m: None)
+    seconds = time.perf_counter() - t0
+    ep, dllm, camera, render = (result.results[k] for k in ("solve", "dllm", "camera", "render"))
+    k = ep.frame_step
+    features = with_omega_rad(dllm.features)  # the detector gives degrees in [0, 360); the dataset stores rad in (-pi, pi]
+    rods = RodArray.from_sensor(scene.sensor)
+    rod_force = ep.rod_force_n[k][:, : rods.n_rods].astype(np.float32)
+    lever = np.zeros((rods.n_rods, 3))
+    lever[:, :2] = rods.centres_m[:, :2] - rods.centres_m[:, :2].mean(axis=0)
+    moment = np.cross(lever[None], rod_force.astype(np.float64)).sum(axis=1)
+    arrays = {
+        "dllm_features": features,
+        "dllm_event": np.asarray(dllm.events, dtype=bool),
+        "frame_label": frame_labels(Sample(**job["sample"]), spec, ep.n_frames, scene.camera.fps, job["label"]),
+        "rod_force_n": rod_force,
+        "wrench": np.concatenate([rod_force.sum(axis=1), moment], axis=1).astype(np.float32),
+        "screw_pose": ep.pose[k].astype(np.float32),
+        "rod_signal_e": camera.rod_signal_e.astype(np.float32),
+    }
+    if job["store_frames"]:
+        arrays["frames"] = camera.frames
+    attrs = {key: job[key] for key in ("episode_id", "action", "label", "label_4", "person", "sample_index", "noise_seed", "sample")}
+    attrs.update(n_frames=int(ep.n_frames), fps=float(scene.camera.fps), rod_of_taxel=[int(v) for v in dllm.rod_of_taxel],
+                 max_sheet_displacement_mm=float(max(render.info.get("sheet_displacement_mm", [0.0]))),
+                 peak_normal_force_n=float(ep.normal_force_n.max()), seconds=round(seconds, 4),
+                 stage_seconds={s: round(v, 4) for s, v in result.seconds.items()})
+    return {"arrays": arrays, "attrs": attrs}
+
+
+# ------------------------------------------------------------------------------------ the driver
+def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: int = 1, executor: str = "local", address: str | None = None,
+             cache_dir: str | Path | None = None, progress: bool = True, log: Callable[[str], None] = print,
+             limit: int | None = None) -> dict:
+    """Generate (or complete) the dataset of ``spec`` in ``out_dir``; returns the run's summary.
+
+    ``limit``: stop after this many new episodes (for tests and trials; a rerun continues)."""
+    from tqdm.auto import tqdm
+
+    from mlsim import pipeline
+    from mlsim.dataset.executors import map_unordered
+
+    out = Path(out_dir)
+    jobs, people = plan_episodes(spec)
+    cache = pipeline.Cache(cache_dir, keep=CACHE_KEEP)
+    attrs = {"spec": spec.model_dump(mode="json"), "base_scene": base.model_dump(mode="json"), "base_scene_hash": base.content_hash(),
+             "people": people, "n_episodes": len(jobs), "actions": list(spec.actions), "class_names": list(ACTIONS),
+             "versions": pipeline.package_versions(), "mesh_key": pipeline.stage_key(base, "mesh")}
+    store.create_or_open(out, attrs, spec.content_hash())
+    done = store.complete_episodes(out)
+    todo = [j for j in jobs if j["episode_id"] not in done]
+    if limit is not None:
+        todo = todo[: max(int(limit), 0)]
+    log(f"[dataset] {spec.name}: {len(jobs)} episodes, {len(done)} already stored, {len(todo)} to run on {workers} {executor} worker(s)")
+    common = {"base_scene": base.model_dump(mode="json"), "interaction": spec.interaction.model_dump(mode="json"),
+              "cache_dir": str(cache.root), "store_frames": spec.store_frames}
+    t_start = time.perf_counter()
+    precompute_s = 0.0
+    if todo:
+        # the sensor's precomputes once, here, so the workers load them instead of each building them
+        t0 = time.perf_counter()
+        pipeline.run(episode_scene(todo[0] | common), cache=cache, outputs=("dllm",), progress=progress, log=lambda m: log(m) if "precomput" in m
+                     or "tracing" in m else None)
+        precompute_s = time.perf_counter() - t0
+    t_run = time.perf_counter()
+    bar = tqdm(total=len(jobs), initial=len(done), unit="episode", desc=f"dataset {spec.name}", disable=None if progress else True,
+               smoothing=0.05)
+    n_new = 0
+    worker_seconds = []
+    try:
+        for job, result in map_unordered(run_episode_job, (j | common for j in todo), executor=executor, workers=workers, address=address):
+            store.write_episode(out, job["episode_id"], result["arrays"], result["attrs"])
+            worker_seconds.append(result["attrs"]["seconds"])
+            n_new += 1
+            bar.update(1)
+    finally:
+        bar.close()
+    wall = time.perf_counter() - t_run
+    stored = store.complete_episodes(out)
+    summary = {
+        "name": spec.name, "out": str(out), "episodes_planned": len(jobs), "episodes_stored": len(stored), "episodes_run_now": n_new,
+        "complete": len(stored) == len(jobs), "workers": workers, "executor": executor,
+        "precompute_s": round(precompute_s, 2), "episodes_wall_s": round(wall, 2),
+        "episodes_per_s": round(n_new / wall, 3) if wall > 0 and n_new else None,
+        "worker_s_per_episode_median": round(float(np.median(worker_seconds)), 3) if worker_seconds else None,
+        "total_wall_s": round(time.perf_counter() - t_start, 2), "spec_hash": spec.content_hash(), "mesh_key": attrs["mesh_key"],
+        "versions": attrs["versions"],
+    }
+    pipeline.atomic_bytes(out / "dataset.json", json.dumps(summary, indent=2).encode())
+    if summary["complete"]:
+        from mlsim.dataset.card import write_card
+
+        write_card(out, spec, base, summary)
+    log(f"[dataset] {n_new} episodes in {wall:.1f} s ({summary['episodes_per_s']} episodes/s); {len(stored)}/{len(jobs)} stored in {out}")
+    return summary
+

@@ -1,0 +1,220 @@
+"""Interaction datasets (mlsim.dataset): the plan, kill-and-resume, determinism, the reader, the physics in them."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mlsim.dataset import generate as gen
+from mlsim.dataset import store
+from mlsim.dataset.reader import EpisodeDataset, load_episodes
+from mlsim.dataset.spec import load_dataset_spec
+from mlsim.interactions import ACTIONS
+from mlsim.scene import SceneError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def write_spec(tmp: Path, samples_per_action: int = 2, people: int = 2, actions=ACTIONS, seed: int = 0, extra: str = "") -> Path:
+    """A small spec on the interaction base scene, with a cheap transport trace (8 spp) for tests."""
+    base = (ROOT / "scenes" / "interactions" / "screw.toml").read_text()
+    (tmp / "screw.toml").write_text(base.replace('tier = "transport"\n', 'tier = "transport"\ntransport_spp = 8\n', 1))
+    acts = ", ".join(f'"{a}"' for a in actions)
+    path = tmp / "spec.toml"
+    path.write_text(f'name = "test_ds"\nscene = "screw.toml"\nseed = {seed}\npeople = {people}\nsamples_per_action = {samples_per_action}\n'
+                    f"actions = [{acts}]\n{extra}")
+    return path
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """A generated 8 actions x 2 samples dataset (2 local workers): (spec, base, directory)."""
+    tmp = tmp_path_factory.mktemp("ds")
+    spec, base = load_dataset_spec(write_spec(tmp))
+    out = tmp / "data"
+    gen.generate(spec, base, out, workers=2, progress=False, log=lambda m: None)
+    return spec, base, out
+
+
+def test_plan_is_pure_and_a_larger_dataset_extends_a_smaller(tmp_path):
+    spec, _ = load_dataset_spec(write_spec(tmp_path, samples_per_action=4, people=2))
+    a, people = gen.plan_episodes(spec)
+    b, _ = gen.plan_episodes(spec)
+    assert a == b and len(a) == 32 and len(people) == 2
+    big, _ = gen.plan_episodes(spec.model_copy(update={"samples_per_action": 6}))
+    small_ids = {j["episode_id"]: j for j in a}
+    for j in big:
+        if j["episode_id"] in small_ids:
+            assert j == small_ids[j["episode_id"]]
+    labels = [j["label"] for j in a]
+    assert [labels.count(k) for k in range(8)] == [4] * 8
+    assert {j["person"] for j in a if j["action"] == "push"} == {0, 1}
+    assert len({j["noise_seed"] for j in a}) == 32
+
+
+def test_spec_errors(tmp_path):
+    with pytest.raises(SceneError, match="not an action"):
+        load_dataset_spec(write_spec(tmp_path, actions=("push", "wave")))
+    with pytest.raises(SceneError, match="below people"):
+        load_dataset_spec(write_spec(tmp_path, samples_per_action=2, people=3))
+    with pytest.raises(SceneError, match="colour"):
+        load_dataset_spec(write_spec(tmp_path, extra="colour = 1\n"))
+    with pytest.raises(SceneError, match="no such scene file"):
+        p = write_spec(tmp_path)
+        p.write_text(p.read_text().replace('scene = "screw.toml"', 'scene = "nope.toml"'))
+        load_dataset_spec(p)
+
+
+def test_a_dataset_of_another_spec_is_refused(small, tmp_path):
+    spec, base, out = small
+    with pytest.raises(store.DatasetMismatch, match="another spec"):
+        gen.generate(spec.model_copy(update={"seed": 5}), base, out, progress=False, log=lambda m: None)
+
+
+def test_stored_episodes_are_complete_and_labelled(small):
+    spec, base, out = small
+    eps = load_episodes(out, arrays=None)
+    assert len(eps) == 16 and sorted(e["episode_id"] for e in eps) == sorted(j["episode_id"] for j in gen.plan_episodes(spec)[0])
+    for e in eps:
+        T = e["n_frames"]
+        assert e["dllm_features"].shape == (T, 25, 3) and e["dllm_features"].dtype == np.float32
+        assert e["rod_force_n"].shape == (T, 25, 3) and e["wrench"].shape == (T, 6) and e["frame_label"].shape == (T,)
+        assert "frames" not in e  # the spec does not store frames
+        assert np.all(np.isfinite(e["dllm_features"]))
+        assert set(np.unique(e["frame_label"])) == {-1, ACTIONS.index(e["action"])}
+        omega = e["dllm_features"][..., 2]
+        assert np.all(np.abs(omega) <= math.pi + 1e-6)  # stored in rad
+    card = (out / "README.md").read_text()
+    assert "16 episodes" in card and "push 2" in card
+    assert not (out / ".partial").exists() or not any((out / ".partial").iterdir())
+
+
+def test_the_physics_in_the_episodes(small):
+    """The clamp reaches its force; the screw moves by the drawn stroke; the sensor is dragged the
+    way the screw moves; a rotation twists it the drawn way; the stroke glows."""
+    spec, base, out = small
+    for e in load_episodes(out, arrays=None):
+        s, T = e["sample"], e["n_frames"]
+        ramp_end = int(round(spec.interaction.grip_s * e["fps"]))
+        f_ramp = -e["wrench"][ramp_end, 2]  # the screw pushes the rods down (-z)
+        assert f_ramp == pytest.approx(spec.interaction.grip_force_n, rel=1e-4)
+        pose = e["screw_pose"].astype(np.float64)
+        stroke = e["frame_label"] >= 0
+        last = np.flatnonzero(stroke)[-1]
+        sig = e["rod_signal_e"].sum(axis=1)
+        assert sig[stroke].max() > 20 * max(sig[ramp_end + 2 : np.flatnonzero(stroke)[0]].max(), 1.0)  # dark before the stroke
+        if e["action"].startswith("rotation"):
+            turn = math.degrees(pose[last, 3] - pose[0, 3])
+            assert turn == pytest.approx(s["twist_deg"], rel=1e-5)
+            assert np.sign(e["wrench"][last, 5]) == np.sign(s["twist_deg"])  # the rods are twisted the screw's way
+        else:
+            d = (pose[last, :2] - pose[0, :2]) * 1e3
+            assert np.hypot(*d) == pytest.approx(s["stroke_mm"], rel=1e-5)
+            a = math.radians(s["direction_deg"])
+            drag = e["wrench"][last, :2] @ np.array([math.cos(a), math.sin(a)])
+            assert drag > 0.2 * spec.interaction.grip_force_n  # friction drags the tips along the stroke
+
+
+def test_torch_dataset_reads_what_was_written(small):
+    import torch
+
+    _, _, out = small
+    ds = EpisodeDataset(out, arrays=("dllm_features", "frame_label", "wrench"))
+    eps = load_episodes(out, arrays=("dllm_features", "frame_label", "wrench"))
+    assert len(ds) == len(eps) == 16
+    for i in (0, 7, 15):
+        item = ds[i]
+        assert item["episode_id"] == eps[i]["episode_id"] and item["label"] == eps[i]["label"]
+        assert torch.equal(item["dllm_features"], torch.from_numpy(eps[i]["dllm_features"]))
+        assert torch.equal(item["wrench"], torch.from_numpy(eps[i]["wrench"]))
+    loader = torch.utils.data.DataLoader(ds, batch_size=None, shuffle=False)
+    assert sum(1 for _ in loader) == 16
+    with pytest.raises(ValueError, match="not stored"):
+        EpisodeDataset(out, arrays=("velocity",))
+    with pytest.raises(FileNotFoundError, match="mlsim dataset"):
+        EpisodeDataset(out / "nothing")
+
+
+def test_kill_halfway_then_resume_completes_without_duplicates(small, tmp_path):
+    """SIGKILL the CLI mid-run (2 workers), rerun: every episode exactly once, whole, and equal to an
+    uninterrupted run's (byte for byte: same spec and seed, same features)."""
+    spec_path = write_spec(tmp_path, samples_per_action=2, people=2)
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "mlsim.cli", "dataset", str(spec_path), "--out", str(out), "--workers", "2", "--quiet"]
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 240
+    try:
+        while len(store.complete_episodes(out)) < 4:
+            if proc.poll() is not None:
+                pytest.fail(f"the run ended before it could be killed: {proc.stderr.read().decode()[-2000:]}")
+            if time.monotonic() > deadline:
+                pytest.fail("no 4 episodes within 240 s")
+            time.sleep(0.05)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    n_killed = len(store.complete_episodes(out))
+    assert 4 <= n_killed < 16
+    spec, base = load_dataset_spec(spec_path)
+    summary = gen.generate(spec, base, out, workers=2, progress=False, log=lambda m: None)
+    assert summary["complete"] and summary["episodes_run_now"] == 16 - n_killed
+    ids = store.complete_episodes(out)
+    assert len(ids) == 16 and not any((out / ".partial").iterdir())
+    # against the uninterrupted run of the same spec (the module's fixture): byte-identical features
+    _, _, reference = small
+    for e in sorted(ids):
+        a = store.read_episode(out, e, ("dllm_features", "dllm_event", "rod_force_n"))
+        b = store.read_episode(reference, e, ("dllm_features", "dllm_event", "rod_force_n"))
+        for k in ("dllm_features", "dllm_event", "rod_force_n"):
+            assert a[k].tobytes() == b[k].tobytes(), (e, k)
+
+
+def test_a_half_written_episode_is_cleared(small, tmp_path):
+    spec, base, out = small
+    junk = out / ".partial" / "push_00000.12345"
+    junk.mkdir(parents=True)
+    (junk / "zarr.json").write_text("{")  # a crash mid-write
+    gen.generate(spec, base, out, progress=False, log=lambda m: None)  # nothing to do, but it opens the store
+    assert not junk.exists()
+    assert len(store.complete_episodes(out)) == 16
+
+
+def test_closed_loop_classifies_the_stream_as_the_offline_model_does(small, tmp_path):
+    """outputs = ["classify"] on an episode of the dataset: the streaming DLLM gives the stored
+    features, so each active window's class is the offline prediction on the stored features;
+    windows with no DLLM event are idle; commands follow SPEC 1.7's table."""
+    from classifiers.train import predict_windows, save_model, train
+    from classifiers.windows import robot_command
+    from mlsim import pipeline
+
+    spec, base, out = small
+    eps = load_episodes(out)
+    model = train(eps, n_classes=8, seed=0, epochs=3)
+    path = save_model(model, tmp_path / "m.pt")
+    job = next(j for j in gen.plan_episodes(spec)[0] if j["action"] == "sliding_left")
+    common = {"base_scene": base.model_dump(mode="json"), "interaction": spec.interaction.model_dump(mode="json")}
+    scene = gen.episode_scene(job | common).with_values({"classify": {"model": str(path)}, "outputs": ["classify"]})
+    lines = []
+    result = pipeline.run(scene, cache=pipeline.Cache(), progress=False, log=lines.append).results["classify"]
+    stored = store.read_episode(out, job["episode_id"], ("dllm_features", "dllm_event"))
+    T = len(stored["dllm_event"])
+    assert np.array_equal(result.last_frame, np.arange(7, T))
+    window_events = np.array([stored["dllm_event"][k - 7 : k + 1].any() for k in result.last_frame])
+    assert np.array_equal(result.classes >= 0, window_events)
+    offline = predict_windows(model, stored["dllm_features"], stride=1)
+    assert np.array_equal(offline.last_frame, result.last_frame)
+    assert np.array_equal(result.classes[window_events], offline.classes[window_events])
+    assert result.commands == [robot_command(int(c)) if c >= 0 else "" for c in result.classes]
+    assert sum("[classify] t =" in m for m in lines) == int(window_events.sum())
+    assert np.all(result.latency_ms > 0)
+    with pytest.raises(SceneError, match="classify.model"):
+        scene.with_values({"classify": {}})
