@@ -55,6 +55,7 @@ from classifiers.windows import (
     stream_windows,
     to_four_class,
 )
+from mlsim.plots import save_png
 
 __all__ = [
     "ABLATION_FEATURE_SETS",
@@ -629,9 +630,7 @@ def plot_confusion(matrix, class_names: Sequence[str], path, title: str | None =
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=120)
 
 
 def plot_history(history: dict, path, best_epoch: int | None = None, title: str | None = None) -> Path:
@@ -664,9 +663,7 @@ def plot_history(history: dict, path, best_epoch: int | None = None, title: str 
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=120)
 
 
 # --- storage ---------------------------------------------------------------------------------
