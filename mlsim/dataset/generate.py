@@ -154,8 +154,8 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     if todo:
         # the sensor's precomputes once, here, so the workers load them instead of each building them
         t0 = time.perf_counter()
-        pipeline.run(episode_scene(todo[0] | common), cache=cache, outputs=("dllm",), progress=progress, log=lambda m: log(m) if "precomput" in m
-                     or "tracing" in m else None)
+        pipeline.run(episode_scene(todo[0] | common), cache=cache, outputs=("dllm",), progress=False,
+                     log=lambda m: log(m) if "precomput" in m or "tracing" in m else None)
         precompute_s = time.perf_counter() - t0
     t_run = time.perf_counter()
     bar = tqdm(total=len(jobs), initial=len(done), unit="episode", desc=f"dataset {spec.name}", disable=None if progress else True,
