@@ -171,7 +171,16 @@ def test_closing_the_generator_early_stops_the_workers():
             os.kill(pid, 0)
 
 
-def test_keyboard_interrupt_stops_the_workers_and_propagates():
+@pytest.fixture
+def default_sigint():
+    """Python's own SIGINT handler for the test (an earlier test's library may have replaced it:
+    seen once in a full clean-checkout run), restored afterwards."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_keyboard_interrupt_stops_the_workers_and_propagates(default_sigint):
     items = [{"episode_id": 0, "x": 1}] + [{"episode_id": i, "x": i, "sleep_s": 30.0} for i in range(1, 5)]
     main = threading.main_thread().ident
     pids = []
@@ -253,7 +262,7 @@ def test_ray_actor_death_names_the_item(ray_cluster, ray_quiet):
     _assert_cluster_cpus_free(ray_quiet, ray_cluster)
 
 
-def test_ray_keyboard_interrupt_kills_the_actors(ray_cluster, ray_quiet):
+def test_ray_keyboard_interrupt_kills_the_actors(ray_cluster, ray_quiet, default_sigint):
     ray = ray_quiet
     items = [{"episode_id": 0, "x": 1}] + [{"episode_id": i, "x": i, "sleep_s": 30.0} for i in range(1, 4)]
     main = threading.main_thread().ident
