@@ -55,8 +55,7 @@ class LoopResult:
 def run_loop(frames: np.ndarray, idle: np.ndarray, calibration, dllm_params, model, fps: float, stride: int = 1) -> LoopResult:
     """Run the loop over camera ``frames`` (T, H, W, 3) uint8 after the ``idle`` frames (n, H, W, 3)
     that initialise the detector. ``model``: a :class:`classifiers.train.TrainResult`."""
-    import torch
-
+    from classifiers.interaction_cnn import predict_proba
     from classifiers.windows import channels, class_names, robot_command
     from dllm.detector import Dllm
     from dllm.features import with_omega_rad
@@ -75,23 +74,21 @@ def run_loop(frames: np.ndarray, idle: np.ndarray, calibration, dllm_params, mod
     feats = np.zeros((T, calibration.n_taxels, 3), np.float32)
     events = np.zeros(T, bool)
     out = {"last": [], "cls": [], "p": [], "lat": []}
-    with torch.inference_mode():
-        for k in range(T):
-            t0 = time.perf_counter()
-            r = det.step(frames[k])
-            feats[k] = with_omega_rad(r.features)
-            events[k] = r.event
-            if k < L - 1 or (k - (L - 1)) % stride:
-                continue
-            cls, p = -1, float("nan")
-            if events[k - L + 1 : k + 1].any():
-                X = model.standardizer.transform(channels(feats[k - L + 1 : k + 1], model.feature_set).T[None])
-                prob = torch.softmax(net(torch.from_numpy(np.ascontiguousarray(X, dtype=np.float32))), dim=1)[0].numpy()
-                cls, p = int(prob.argmax()), float(prob.max())
-            out["lat"].append((time.perf_counter() - t0) * 1e3)
-            out["last"].append(k)
-            out["cls"].append(cls)
-            out["p"].append(p)
+    for k in range(T):
+        t0 = time.perf_counter()
+        r = det.step(frames[k])
+        feats[k] = with_omega_rad(r.features)
+        events[k] = r.event
+        if k < L - 1 or (k - (L - 1)) % stride:
+            continue
+        cls, p = -1, float("nan")
+        if events[k - L + 1 : k + 1].any():
+            prob = predict_proba(net, model.standardizer.transform(channels(feats[k - L + 1 : k + 1], model.feature_set).T[None]))[0]
+            cls, p = int(prob.argmax()), float(prob.max())
+        out["lat"].append((time.perf_counter() - t0) * 1e3)
+        out["last"].append(k)
+        out["cls"].append(cls)
+        out["p"].append(p)
     classes = np.array(out["cls"], np.int64)
     names = [names_of[c] if c >= 0 else IDLE for c in classes]
     commands = [robot_command(int(c), model.n_classes) if c >= 0 else "" for c in classes]

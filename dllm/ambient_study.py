@@ -66,14 +66,14 @@ class AmbientRow:
 def _frames(scene, cache, progress, idle_s: float = 3.0):
     """(interaction CameraFrames, idle frames (max(T, idle_s fps), H, W, 3) from t = 0, pre-roll
     frames, calibration rgb)."""
+    from dllm.detector import DllmParams
     from mlsim import pipeline
     from mlsim.render.output import idle_frames
 
     res = pipeline.run(scene.with_values({"outputs": ["camera", "calibration", "render"]}), out_dir=None, cache=cache, progress=progress,
                        log=lambda m: None)
     cam, render = res.results["camera"], res.results["render"]
-    n_pre = max(int(round(scene.dllm.init_s * scene.camera.fps)), 1)
-    pre = idle_frames(scene, render, n_pre)
+    pre = idle_frames(scene, render, DllmParams.from_scene(scene).init_frames)
     n_idle = max(len(cam.frames), int(round(idle_s * scene.camera.fps)))
     idle = idle_frames(scene, render, n_idle, start_s=float(cam.windows_s[0, 0]), stream=1)
     return cam, idle, pre, res.results["calibration"].rgb

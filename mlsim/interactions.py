@@ -55,7 +55,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import Field, Strict, model_validator
 
-from mlsim.scene import Scene, _Model
+from mlsim.scene import Float, NonNeg, Pos, Scene, _Model
 
 __all__ = [
     "ACTIONS",
@@ -78,10 +78,8 @@ ACTIONS_4 = ("push_pull", "sliding", "rotation_cw", "rotation_ccw")
 ACTION_TO_4 = {"push": 0, "pull": 0, "oblique_push": 0, "oblique_pull": 0, "sliding_left": 1, "sliding_right": 1,
                "rotation_cw": 2, "rotation_ccw": 3}
 
-Pos = Annotated[float, Strict(), Field(gt=0)]
-NonNeg = Annotated[float, Strict(), Field(ge=0)]
 Range = tuple[NonNeg, NonNeg]
-SignedRange = tuple[Annotated[float, Strict()], Annotated[float, Strict()]]
+SignedRange = tuple[Float, Float]
 
 
 class InteractionSpec(_Model):

@@ -220,12 +220,17 @@ def _cached_precompute(ctx: "RunContext", stage: "Stage", payload: dict, build: 
     return _memo((stage.name, key, str(ctx.cache.root)), load_or_build)
 
 
+def _patches_key(scene: Scene) -> tuple:
+    """What the emitting patches depend on: the mesh and the sheet's discretisation."""
+    return stage_key(scene, "mesh"), scene.fidelity.mesh.segments_per_circle, scene.fidelity.render.sheet_edge_mm * 1e-3
+
+
 def _patches(scene: Scene, geometry, mesh):
     """The ML sheet's emitting patches of this sensor and mesh (shared in-process)."""
     from mlsim import emission
 
-    segments, edge_m = scene.fidelity.mesh.segments_per_circle, scene.fidelity.render.sheet_edge_mm * 1e-3
-    return _memo(("patches", stage_key(scene, "mesh"), segments, edge_m), lambda: emission.ml_patches(geometry, mesh, segments, edge_m))
+    key = _patches_key(scene)
+    return _memo(("patches",) + key, lambda: emission.ml_patches(geometry, mesh, key[1], key[2]))
 
 
 def _sheet(scene: Scene, patches):
@@ -419,6 +424,9 @@ _AMBIENT_IMAGE_FIELDS = ("ambient.lamp", "ambient.power_w", "ambient.height_m", 
 
 
 def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    import numpy as np
+
+    from fem.mesh import locate_points
     from mlsim import render
 
     em, episode = inputs["emission"], inputs["solve"]
@@ -426,11 +434,8 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     radiance = render.radiance_of(em.photons_per_s, em.patches.area_m2)
     spec = scene.fidelity.render
     transport = None
-    import numpy as np
-
-    from fem.mesh import locate_points
-
-    located = _memo(("sheet_in_mesh", stage_key(scene, "mesh"), scene.content_hash(_VIEW_FIELDS)),
+    # where each sheet vertex sits in the mesh: of the sensor, not the episode (shared in-process)
+    located = _memo(("patches_in_mesh",) + _patches_key(scene),
                     lambda: locate_points(episode.mesh_points, episode.mesh_tets, np.asarray(em.patches.vertices_m, dtype=float)))
     vertices = render.deformed_vertices(episode, em.patches.vertices_m, located)
     if spec.tier == "transport":
@@ -513,13 +518,18 @@ def _calibration_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
     return write_calibration(result, out_dir)
 
 
-def _dllm_run(scene: Scene, inputs: dict, ctx: "RunContext"):
-    from dllm.episode import run_episode
+def _idle_before(scene: Scene, render_result):
+    """The idle frames before the episode on which the DLLM initialises its thresholds (SPEC 1.6)."""
+    from dllm.detector import DllmParams
     from mlsim.render.output import idle_frames
 
-    n_idle = max(int(round(scene.dllm.init_s * scene.camera.fps)), 1)
-    idle = idle_frames(scene, inputs["render"], n_idle)
-    return run_episode(scene, inputs["camera"], inputs["calibration"].rgb, idle)
+    return idle_frames(scene, render_result, DllmParams.from_scene(scene).init_frames)
+
+
+def _dllm_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from dllm.episode import run_episode
+
+    return run_episode(scene, inputs["camera"], inputs["calibration"].rgb, _idle_before(scene, inputs["render"]))
 
 
 def _dllm_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
@@ -533,11 +543,10 @@ def _classify_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from classifiers.train import load_model
     from dllm.detector import DllmParams
     from dllm.episode import calibrate_scene
-    from mlsim.render.output import idle_frames
 
     model = load_model(scene.classify.model)
     calibration, _ = calibrate_scene(scene, inputs["calibration"].rgb)
-    idle = idle_frames(scene, inputs["render"], max(int(round(scene.dllm.init_s * scene.camera.fps)), 1))
+    idle = _idle_before(scene, inputs["render"])
     result = run_loop(inputs["camera"].frames, idle, calibration, DllmParams.from_scene(scene), model, scene.camera.fps, scene.classify.stride)
     for i in range(len(result.classes)):
         if result.classes[i] >= 0:

@@ -613,15 +613,20 @@ def resolve_material(name: str, overrides: dict[str, MaterialOverride]) -> Mater
 
 
 # ------------------------------------------------------------------------------------ loading
-def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Scene:
-    """Read and validate a TOML scene. Raises :class:`SceneError` (with every problem) if invalid."""
+def read_toml(path: str | Path, what: str = "scene file") -> dict:
+    """The TOML file at ``path`` as a dict; a :class:`SceneError` if it is missing or not TOML."""
     path = Path(path)
     if not path.is_file():
-        raise SceneError([Problem("<file>", str(path), "no such scene file")], source=str(path))
+        raise SceneError([Problem("<file>", str(path), f"no such {what}")], source=str(path))
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SceneError([Problem("<file>", str(path), f"not valid TOML: {exc}")], source=str(path)) from None
+
+
+def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Scene:
+    """Read and validate a TOML scene. Raises :class:`SceneError` (with every problem) if invalid."""
+    data = read_toml(path)
     for dotted, value in (overrides or {}).items():
         _set_path(data, _split_path(dotted), value, dotted)
     return scene_from_dict(data, source=str(path))

@@ -21,6 +21,7 @@ in the last bits; ``dataset.json`` records the mesh's cache key and the card say
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from pathlib import Path
@@ -63,23 +64,21 @@ def plan_episodes(spec: DatasetSpec) -> tuple[list[dict], list[dict]]:
 
 
 # ------------------------------------------------------------------------------------ the worker
-_BASE: dict[str, Scene] = {}
+@functools.lru_cache(maxsize=1)  # a worker runs one dataset: its base scene is validated once
+def _base_scene(canonical_json: str) -> Scene:
+    return scene_from_dict(json.loads(canonical_json), source="dataset base scene")
 
 
-def _base_scene(data: dict) -> Scene:
-    key = json.dumps(data, sort_keys=True)
-    if key not in _BASE:
-        _BASE.clear()
-        _BASE[key] = scene_from_dict(data, source="dataset base scene")
-    return _BASE[key]
+def _episode(job: dict) -> tuple[Scene, Sample, InteractionSpec]:
+    sample, spec = Sample(**job["sample"]), InteractionSpec(**job["interaction"])
+    base = _base_scene(json.dumps(job["base_scene"], sort_keys=True))
+    return interaction_scene(base, sample, spec, noise_seed=job["noise_seed"], name=job["episode_id"]), sample, spec
 
 
 def episode_scene(job: dict) -> Scene:
     """The scene of one planned episode (``job`` from :func:`plan_episodes` plus the base scene,
     the interaction spec)."""
-    base = _base_scene(job["base_scene"])
-    return interaction_scene(base, Sample(**job["sample"]), InteractionSpec(**job["interaction"]), noise_seed=job["noise_seed"],
-                             name=job["episode_id"])
+    return _episode(job)[0]
 
 
 def run_episode_job(job: dict) -> dict:
@@ -91,8 +90,7 @@ def run_episode_job(job: dict) -> dict:
     from fem.geometry import RodArray
     from mlsim import pipeline
 
-    scene = episode_scene(job)
-    spec = InteractionSpec(**job["interaction"])
+    scene, sample, spec = _episode(job)
     t0 = time.perf_counter()
     result = pipeline.run(scene, cache=pipeline.Cache(job["cache_dir"], keep=CACHE_KEEP), outputs=("dllm",), progress=False, log=lambda _m: None)
     seconds = time.perf_counter() - t0
@@ -107,7 +105,7 @@ def run_episode_job(job: dict) -> dict:
     arrays = {
         "dllm_features": features,
         "dllm_event": np.asarray(dllm.events, dtype=bool),
-        "frame_label": frame_labels(Sample(**job["sample"]), spec, ep.n_frames, scene.camera.fps, job["label"]),
+        "frame_label": frame_labels(sample, spec, ep.n_frames, scene.camera.fps, job["label"]),
         "rod_force_n": rod_force,
         "wrench": np.concatenate([rod_force.sum(axis=1), moment], axis=1).astype(np.float32),
         "screw_pose": ep.pose[k].astype(np.float32),

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import tomllib
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -29,7 +28,7 @@ from pydantic import Field, Strict, ValidationError, field_validator, model_vali
 
 from mlsim.errors import Problem, SceneError
 from mlsim.interactions import ACTIONS, InteractionSpec
-from mlsim.scene import Scene, _Model, _problems_from_pydantic, load_scene
+from mlsim.scene import Bool, Scene, _Model, _problems_from_pydantic, load_scene, read_toml
 
 __all__ = ["DatasetSpec", "load_dataset_spec", "dataset_spec_from_dict"]
 
@@ -44,7 +43,7 @@ class DatasetSpec(_Model):
     people: Annotated[int, Strict(), Field(ge=1, le=10_000)] = 10
     samples_per_action: Annotated[int, Strict(), Field(ge=1, le=1_000_000)] = 100
     actions: Annotated[tuple[str, ...], Field(min_length=1)] = ACTIONS
-    store_frames: Annotated[bool, Strict()] = False
+    store_frames: Bool = False
     interaction: InteractionSpec = InteractionSpec()
 
     @field_validator("actions")
@@ -84,12 +83,7 @@ def load_dataset_spec(path: str | Path, overrides: dict[str, Any] | None = None)
 
     ``overrides``: top-level fields to change (e.g. ``{"samples_per_action": 16}``)."""
     path = Path(path)
-    if not path.is_file():
-        raise SceneError([Problem("<file>", str(path), "no such dataset spec")], source=str(path))
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SceneError([Problem("<file>", str(path), f"not valid TOML: {exc}")], source=str(path)) from None
+    data = read_toml(path, "dataset spec")
     data.update(overrides or {})
     spec = dataset_spec_from_dict(data, source=str(path))
     scene_path = (path.parent / spec.scene).resolve()

@@ -146,7 +146,6 @@ def render_accuracy(scene, spps=(1, 4, 16, 64), transport_spps=(16, 64), referen
             hybrid = render.render_frames(sheet, radiance, "transport", transport=T, spp=scene.fidelity.render.spp, seed=60_000 + spp,
                                           vertices_m=vertices, path_above_m=limit_mm * 1e-3).radiance
             per_frame = (time.perf_counter() - t0) / len(chosen)
-            sheet.set_vertices(sheet.rest_vertices_m)
             rows.append(RenderRow("transport+path", int(spp), False, per_frame * 1e3, trace_s, _errors(hybrid[..., None] * k, reference, masks)))
     from mlsim.accuracy import pareto_front
 
