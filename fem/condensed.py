@@ -239,9 +239,15 @@ def _contact_law(X, u, shape, pose, drag, state, friction, k_n, k_t, stick_predi
 
 
 def solve_points(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, guess=None, smooth_m: float = 1e-7, stages: int = 3, **kw):
-    """:func:`_newton_points`, and if it fails, continuation in the penalty's smoothing length: solved
-    with ``smooth_m`` x 100, x 10, then x 1 (for ``stages`` = 3), each from the last solution. The smooth
-    problems converge in a few iterations and leave the sharp one close to its answer."""
+    """One contact step. With ``delassus`` (and ``warm``) in ``kw``: ADMM on the Delassus operator with
+    bounded work (:func:`_admm_points`). Otherwise :func:`_newton_points`, and if it fails,
+    continuation in the penalty's smoothing length: solved with ``smooth_m`` x 100, x 10, then x 1
+    (for ``stages`` = 3), each from the last solution. The smooth problems converge in a few
+    iterations and leave the sharp one close to its answer."""
+    if kw.get("delassus") is not None:
+        return _admm_points(u0, X, shape, pose, pose_old, state, friction, k_n, k_t, guess, **kw)
+    kw.pop("delassus", None)
+    kw.pop("warm", None)
     try:  # from the last step's state the sharp problem usually converges at once
         return _newton_points(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, guess, smooth_m=smooth_m, **kw)
     except SolverError:
@@ -255,6 +261,27 @@ def solve_points(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, gue
         kicks += info["kicks"]
     info["iterations"], info["kicks"] = total, kicks
     return u, law, info
+
+
+def _admm_points(u0, X, shape, pose, pose_old, state, friction, k_n, k_t, guess=None, delassus=None, warm=None, groups=None,
+                 case: str = "contact step", max_iterations: int = 200, admm_rtol: float = 1e-5, **ignored):
+    """:func:`fem.contact_admm.solve_step` for the unknowns of :func:`_newton_points` (points, or
+    patches with ``groups``): same arguments and returns. The penalty is isotropic (k_t = k_n)."""
+    from fem import contact_admm
+
+    if not np.allclose(k_t, k_n):
+        raise ValueError("the ADMM contact solver needs one isotropic penalty per point (k_t = k_n)")
+    lift = (lambda v: v) if groups is None else (lambda v: v[groups])
+    u_pts, law, info = contact_admm.solve_step(delassus, lift(u0), X, shape, pose, pose_old, state, friction, k_n, warm,
+                                               None if guess is None else lift(guess), rtol=admm_rtol, max_iterations=max_iterations)
+    if groups is None:
+        u = u_pts
+    else:
+        law.f_unknowns = delassus.group_sum(law.f)
+        u = u0 + (delassus.Cp @ law.f_unknowns.ravel()).reshape(-1, 3)
+    if not np.all(np.isfinite(u)):
+        raise SolverError(f"{case}: NaN or Inf in the contact solution")
+    return u, law, {"iterations": info.iterations, "kicks": 0, "residuals_m": [], "f": law.f_unknowns, "admm": info}
 
 
 def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: IndenterShape, pose: Pose, pose_old: Pose, state: PointState,
@@ -415,8 +442,10 @@ def _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, ma
     groups = kw.get("groups")
     state1 = PointState((u1 if groups is None else u1[groups]).copy(), law1.f_t.copy())
     u2, law2, i2 = solve_path(C, u0, X, shape, pose, mid, state1, friction, k_n, k_t, case, max_depth - 1, max_penetration_m, max_jump_m, **kw)
-    return u2, law2, {"iterations": i1["iterations"] + i2["iterations"], "cuts": 1 + i1["cuts"] + i2["cuts"], "residuals_m": i2["residuals_m"],
-                      "f": i2["f"]}
+    info = {"iterations": i1["iterations"] + i2["iterations"], "cuts": 1 + i1["cuts"] + i2["cuts"], "residuals_m": i2["residuals_m"], "f": i2["f"]}
+    if "admm" in i2:  # the worse half's convergence
+        info["admm"] = max(i1["admm"], i2["admm"], key=lambda a: a.residual_n / max(a.tolerance_n, 1e-300))
+    return u2, law2, info
 
 
 def normal_force(law: _Law) -> float:

@@ -31,9 +31,17 @@ Modelling choices (not given by SPEC 1.4):
   with PDMS. The linear solve is refined until its componentwise backward error is at round-off
   (the plain relative residual cannot drop below ~1e-8 with such a contrast; see
   :func:`_solve_accurately`).
+- Readings (:class:`Reading`): SPEC 1.4 leaves open where the displacement is measured
+  (:data:`MEASURES`), how the force is spread (:data:`LOAD_DISTRIBUTIONS`) and whether it acts at
+  the given height or the body's top (:data:`FORCE_AT`); what is bonded to what is
+  ``block_material`` (steel, or PDMS for the "both PDMS" reading). Default: the slab's top profile
+  (the one surface both cases share, made of the same elastomer, and the SPEC's output), a band
+  traction all around the side, at ``force_height_mm`` (as SPEC 1.4 says). The ratio is then of
+  the chosen measure; the slab's top profile is written whatever the measure.
 - Tiers: ``linear`` (small strain; the response is affine in F with gravity on, so gravity and a
   unit force are solved once and superposed) and ``nonlinear`` (the mixed neo-Hookean solid of
-  :mod:`fem.nonlinear`, dead loads, continued from one force to the next). The Newton loop is
+  :mod:`fem.nonlinear`, dead loads, gravity first and then the force continued through all the
+  forces with a secant predictor, on a coarser mesh: :data:`NONLINEAR_EDGE_MM`). The Newton loop is
   this module's own (:class:`_Newton`): :func:`fem.nonlinear.solve_nonlinear` backtracks on the
   residual norm, which a tilting steel block defeats from the first increment. A force at which
   Newton fails is recorded as not converged: NaN in the outputs and a message, never a silent
@@ -65,6 +73,15 @@ from mlsim.errors import MeshingError, MlsimError
 __all__ = [
     "CASES",
     "TIERS",
+    "MEASURES",
+    "LOAD_DISTRIBUTIONS",
+    "FORCE_AT",
+    "Reading",
+    "measure_points",
+    "measure_stats",
+    "lateral_load",
+    "slice_load",
+    "nonlinear_edge_length_mm",
     "GRAVITY_M_S2",
     "SPEC_ROD_CENTRE_X_MM",
     "Geometry",
@@ -101,6 +118,17 @@ SPEC_ROD_CENTRE_X_MM = 4.0
 ROD_SEGMENTS = 64
 #: Load increments per force step of the nonlinear tier (halved on failure by the solver).
 NONLINEAR_INCREMENTS = 8
+#: The smallest force step (N) the nonlinear tier's continuation may cut down to before it
+#: reports the force as not converged.
+NONLINEAR_MIN_STEP_N = 1e-3
+#: The nonlinear tier's default mesh size (mm): at 0.5 mm its Newton iterations cost 4-8 times
+#: more and the elements at the bonded sharp edges crush at smaller forces; the ratio's force
+#: dependence, which the tier is for, is a global (bending, tilting) effect that 1 mm resolves.
+NONLINEAR_EDGE_MM = 1.0
+#: Newton iterations per load step: near the bonded edges, where det F approaches 0, Newton's
+#: convergence is slow but steady (measured: 18 iterations for the 1 N step of the 1 mm block),
+#: and a genuinely diverging step stops earlier (:class:`_Newton`).
+NONLINEAR_MAX_ITERATIONS = 30
 #: A converged nonlinear state whose det F falls below this at a quadrature point is flagged: an
 #: element crushed near a sharp bonded edge (PDMS at nu 0.49 is nearly incompressible), so the
 #: numbers there depend on the mesh.
@@ -109,6 +137,47 @@ MIN_DET_F_WARNING = 0.2
 LINEAR_BACKWARD_ERROR = 1e-12
 
 # ------------------------------------------------------------------------------------ geometry
+# ------------------------------------------------------------------------------------ readings
+#: Where the displacement is measured (:func:`measure_points`): the slab's top along the profile
+#: (SPEC 1.4's plot), the loaded body's cross-section at the force's height, the loaded body's top
+#: face, or anywhere in the model (slab and body).
+MEASURES = ("slab_top", "load_height", "body_top", "anywhere")
+#: How the lateral force is spread (:func:`lateral_load`): a traction band all around the body's
+#: side; the same band only on the side facing -x (where a pusher touches it); a body force in the
+#: body's slice at the force's height (the force "at the centre").
+LOAD_DISTRIBUTIONS = ("band", "pushed_side", "slice")
+#: Where the force acts: ``force_height_mm`` above the slab's top, or at the body's top.
+FORCE_AT = ("height", "top")
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One reading of SPEC 1.4's loosely given set-up: where the displacement is measured, how the
+    force is spread and where it acts (the choices are explained at :data:`MEASURES`,
+    :data:`LOAD_DISTRIBUTIONS`, :data:`FORCE_AT`). What is bonded to what is the existing
+    ``block_material`` (steel, or the "both PDMS" reading with ``"PDMS"``).
+    Validated at construction: a bad value raises ``ValueError`` naming the scene field."""
+
+    measure: str = "slab_top"
+    load_distribution: str = "band"
+    force_at: str = "height"
+
+    def __post_init__(self):
+        for name, allowed in (("measure", MEASURES), ("load_distribution", LOAD_DISTRIBUTIONS), ("force_at", FORCE_AT)):
+            value = getattr(self, name)
+            if value not in allowed:
+                raise ValueError(f"verify_s2.{name} = {value!r}: not a valid choice; choose one of: {', '.join(allowed)}")
+
+    @classmethod
+    def from_spec(cls, spec) -> "Reading":
+        """The reading a :class:`mlsim.scene.VerifyS2Spec` asks for."""
+        return cls(spec.measure, spec.load_distribution, spec.force_at)
+
+    @property
+    def label(self) -> str:
+        return f"{self.measure}/{self.load_distribution}/{self.force_at}"
+
+
 @dataclass(frozen=True)
 class Geometry:
     """The SPEC 1.4 set-up in metres. The slab spans x, y in [0, slab_m[:2]], z in [0, slab_m[2]];
@@ -120,10 +189,12 @@ class Geometry:
     block_m: tuple[float, float, float]
     force_z_m: float
     band_half_width_m: float
+    force_at: str = "height"  # "top": the band ends at the body's top instead (Reading.force_at)
 
     @classmethod
-    def from_spec(cls, spec, edge_length_m: float | None = None) -> "Geometry":
+    def from_spec(cls, spec, edge_length_m: float | None = None, reading: Reading | None = None) -> "Geometry":
         """From a :class:`mlsim.scene.VerifyS2Spec` (mm); the band half-width follows the edge length."""
+        reading = Reading.from_spec(spec) if reading is None else reading
         edge_m = spec.edge_length_mm * 1e-3 if edge_length_m is None else edge_length_m
         slab = tuple(float(v) * 1e-3 for v in spec.slab_size_mm)
         return cls(
@@ -133,6 +204,7 @@ class Geometry:
             block_m=tuple(float(v) * 1e-3 for v in spec.block_size_mm),
             force_z_m=slab[2] + 1e-3 * spec.force_height_mm,
             band_half_width_m=max(0.5 * edge_m, 0.25e-3),
+            force_at=reading.force_at,
         )
 
     @property
@@ -150,10 +222,18 @@ class Geometry:
         return self.top_m + (self.rod_height_m if case == "sliding" else self.block_m[2])
 
     def band_m(self, case: str) -> tuple[float, float]:
-        """(z_low, z_high) of the loaded band, clipped to the body's side."""
+        """(z_low, z_high) of the loaded band, clipped to the body's side; with ``force_at = "top"``
+        the band of width 2 half-widths that ends at the body's top."""
+        if self.force_at == "top":
+            hi = self.body_top_m(case)
+            return max(hi - 2.0 * self.band_half_width_m, self.top_m), hi
         lo = max(self.force_z_m - self.band_half_width_m, self.top_m)
         hi = min(self.force_z_m + self.band_half_width_m, self.body_top_m(case))
         return lo, hi
+
+    def load_z_m(self, case: str) -> float:
+        """z of the load's line of action: the loaded band's centre."""
+        return 0.5 * sum(self.band_m(case))
 
     def volume_m3(self, case: str) -> float:
         """Analytic volume of slab + rod ("sliding") or slab + block ("pressing")."""
@@ -381,16 +461,21 @@ def gravity_load(d: Discretisation, rho: np.ndarray) -> np.ndarray:
     return np.concatenate([f, np.zeros(d.n_dofs - d.n_u)])
 
 
-def band_facets(skmesh, geom: Geometry, case: str) -> np.ndarray:
+def band_facets(skmesh, geom: Geometry, case: str, pushed_side_only: bool = False) -> np.ndarray:
     """Boundary facets (B,) on the rod's or block's side that overlap the loaded band.
 
     The side: boundary facets above the slab's top whose normal is within 30 degrees of horizontal
     (the rod's chords and the block's faces are vertical; the tops are horizontal).
+    pushed_side_only: only those whose outward normal points to -x (the face a +x pusher touches).
     """
     facets = skmesh.boundary_facets()
     xyz = skmesh.p[:, skmesh.facets[:, facets]]  # (3, 3 vertices, B)
     normal = np.cross(xyz[:, 1] - xyz[:, 0], xyz[:, 2] - xyz[:, 0], axis=0)
     horizontal = np.abs(normal[2]) < 0.5 * np.linalg.norm(normal, axis=0)
+    if pushed_side_only:  # orient each normal outward: away from its tet's centroid
+        inward = skmesh.p[:, skmesh.t[:, skmesh.f2t[0, facets]]].mean(axis=1) - xyz.mean(axis=1)
+        normal = normal * -np.sign(np.einsum("ib,ib->b", normal, inward))
+        horizontal &= normal[0] < -1e-6 * np.linalg.norm(normal, axis=0)
     zlo, zhi = geom.band_m(case)
     zmin, zmax = xyz[2].min(axis=0), xyz[2].max(axis=0)
     eps = 1e-9 * geom.slab_m[2]
@@ -425,6 +510,42 @@ def lateral_band_load(d: Discretisation, facets: np.ndarray, geom: Geometry, cas
     return np.concatenate([f, np.zeros(d.n_dofs - d.n_u)]), area
 
 
+def slice_load(d: Discretisation, geom: Geometry, case: str, intorder: int = 7) -> tuple[np.ndarray, float]:
+    """Unit (1 N along +x) uniform body force over the loaded body's slice z in ``geom.band_m(case)``:
+    ((n,) vector, slice volume m^3). The force "at the body's centre": its line of action passes
+    through the body's axis at the band's centre, and it loads the body through its volume, not
+    through a patch of its surface. The indicator is evaluated at the quadrature points and the
+    volume by the same quadrature, so the resultant is exactly 1 N. Order 7 (24 points, positive
+    weights) has no point on a face: the orders 5, 6 and 8 rules of scikit-fem do, and would count
+    the elements next to a band edge that is a mesh plane (the block's mesh)."""
+    zlo, zhi = geom.band_m(case)
+    basis = skfem.Basis(d.u.mesh, d.u.elem, intorder=intorder)
+
+    def inside(x):
+        return ((x[2] >= zlo) & (x[2] <= zhi) & (x[2] > geom.top_m)).astype(float)
+
+    volume = float(Functional(lambda w: inside(w.x)).assemble(basis))
+    if not volume > 0:
+        raise MlsimError(f"{case}: no part of the body in the load slice z = {zlo * 1e3:.3g}..{zhi * 1e3:.3g} mm")
+
+    @LinearForm
+    def unit_body_force(v, w):
+        return inside(w.x) * v[0] / volume
+
+    f = skfem.asm(unit_body_force, basis)
+    return np.concatenate([f, np.zeros(d.n_dofs - d.n_u)]), volume
+
+
+def lateral_load(d: Discretisation, skmesh, geom: Geometry, case: str, distribution: str = "band") -> tuple[np.ndarray, float]:
+    """The unit lateral load (n,) spread as ``distribution`` (:data:`LOAD_DISTRIBUTIONS`), and the
+    loaded area m^2 (a band) or volume m^3 (a slice)."""
+    if distribution == "slice":
+        return slice_load(d, geom, case)
+    if distribution not in ("band", "pushed_side"):
+        raise ValueError(f"{distribution!r} is not a load distribution; choose one of: {', '.join(LOAD_DISTRIBUTIONS)}")
+    return lateral_band_load(d, band_facets(skmesh, geom, case, pushed_side_only=distribution == "pushed_side"), geom, case)
+
+
 def fixed_bottom_dofs(d: Discretisation) -> np.ndarray:
     """Displacement DOFs (m,) of the slab's bottom (z = 0): all three components fixed."""
     bottom = d.u.mesh.facets_satisfying(lambda x: np.abs(x[2]) < 1e-12, boundaries_only=True)
@@ -449,13 +570,15 @@ class CaseSystem:
     band_area_m2: float
 
 
-def build_system(mesh: CaseMesh, geom: Geometry, materials: Mapping[int, object]) -> CaseSystem:
-    """Discretise (P2P1), assemble the linear operator and the loads of one case."""
+def build_system(mesh: CaseMesh, geom: Geometry, materials: Mapping[int, object], load_distribution: str = "band") -> CaseSystem:
+    """Discretise (P2P1), assemble the linear operator and the loads of one case.
+
+    load_distribution: :data:`LOAD_DISTRIBUTIONS` (``band_area_m2`` is then the slice's volume for "slice")."""
     sk = skfem_mesh(mesh.points, mesh.tets)
     d = discretise(sk, "P2P1")
     lam, mu, rho = element_materials(mesh.label, materials)
     K = assemble(d, lam, mu)
-    unit, area = lateral_band_load(d, band_facets(sk, geom, mesh.case), geom, mesh.case)
+    unit, area = lateral_load(d, sk, geom, mesh.case, load_distribution)
     return CaseSystem(mesh.case, mesh, d, lam, mu, rho, K, gravity_load(d, rho), unit, fixed_bottom_dofs(d), area)
 
 
@@ -546,7 +669,7 @@ class _Newton:
 
     s: "CaseSystem"
     xtol: float = 1e-9
-    max_iterations: int = 12
+    max_iterations: int = NONLINEAR_MAX_ITERATIONS
     min_damping: float = 1.0 / 64
 
     def __post_init__(self):
@@ -602,48 +725,90 @@ class _Newton:
 
 
 def _load_path(
-    s: CaseSystem, x0: np.ndarray, external: Callable[[float], np.ndarray], increments: int, min_increment: float, case: str, max_iterations: int = 12
+    s: CaseSystem,
+    x0: np.ndarray,
+    external: Callable[[float], np.ndarray],
+    lam0: float,
+    lam1: float,
+    first_step: float,
+    min_step: float,
+    case: str,
+    max_iterations: int = NONLINEAR_MAX_ITERATIONS,
+    history: list | None = None,
+    max_step: float | None = None,
+    log: Callable[[str], None] = lambda m: None,
 ) -> tuple[np.ndarray, dict]:
-    """Ramp the load factor t from 0 to 1 (external(t) -> (n,)) from the state x0; halve a failed
-    increment down to ``min_increment``, then raise :class:`fem.nonlinear.SolverError` (its
-    ``load_factor_reached`` is the last converged t). Report: increments, Newton iterations, cuts."""
+    """Continue the equilibrium in the load parameter from lam0 (state x0) to lam1 (external(lam)
+    -> (n,)), in steps starting at ``first_step``, halved on failure down to ``min_step`` (then
+    :class:`fem.nonlinear.SolverError`, whose ``load_factor_reached`` is the last converged
+    fraction of the way), grown by 1.5 after an easy step up to ``max_step``.
+
+    Predictor: the secant through the last two converged states (``history``, a list of (lam, x)
+    shared by successive calls: the path is continued across the forces), which follows a body
+    that tilts or bends over far better than starting Newton from the last state; a predicted
+    state that inverts an element is replaced by the last state. Report: increments, Newton
+    iterations, cuts, the smallest step taken."""
     from fem.nonlinear import SolverError
 
     newton = _Newton(s, max_iterations=max_iterations)
-    x, t, dt = x0.copy(), 0.0, 1.0 / increments
-    report = {"increments": 0, "newton_iterations": 0, "cuts": 0}
-    while t < 1.0 - 1e-12:
-        t_next = min(1.0, t + dt)
-        ok, trial, its, why = newton.solve(x, external(t_next))
+    history = [] if history is None else history
+    max_step = abs(lam1 - lam0) if max_step is None else max_step
+    x, lam, step = x0.copy(), lam0, min(first_step, max_step)
+    report = {"increments": 0, "newton_iterations": 0, "cuts": 0, "smallest_step": None}
+    while lam < lam1 - 1e-12 * max(1.0, abs(lam1)):
+        lam_next = min(lam1, lam + step)
+        if lam1 - lam_next < 0.25 * step:  # no sliver of a last step
+            lam_next = lam1
+        guess = x
+        if history and history[-1][0] == lam and len(history) >= 2:
+            (l0, x_a), (l1, x_b) = history[-2], history[-1]
+            guess = x_b + (lam_next - l1) / (l1 - l0) * (x_b - x_a)
+        ok, trial, its, why = newton.solve(guess, external(lam_next))
+        if not ok and guess is not x:  # the predictor overshot (or inverted an element): plain start
+            report["newton_iterations"] += its
+            ok, trial, its, why = newton.solve(x, external(lam_next))
         report["newton_iterations"] += its
         if ok:
-            x, t = trial, t_next
+            done = lam_next - lam
+            x, lam = trial, lam_next
+            history.append((lam, x))
+            del history[:-2]
             report["increments"] += 1
-            if its <= 6:  # an easy increment: take a longer one next
-                dt = min(1.5 * dt, 4.0 / increments)
+            report["smallest_step"] = done if report["smallest_step"] is None else min(report["smallest_step"], done)
+            if its <= 5:  # an easy increment: take a longer one next
+                step = min(1.5 * step, max_step)
             continue
         report["cuts"] += 1
-        dt *= 0.5
-        if dt < min_increment:
-            exc = SolverError(f"{case}: Newton did not converge at load factor {t_next:.4g} (increment {2 * dt:.3g}): {why}")
-            exc.load_factor_reached = t
+        log(f"verify_s2: {case}: step {lam:.4g} -> {lam_next:.4g} failed ({why}); halving")
+        step = 0.5 * (lam_next - lam)
+        if step < min_step:
+            exc = SolverError(f"{case}: Newton did not converge at load {lam_next:.4g} (step {lam_next - lam:.3g}): {why}")
+            exc.load_factor_reached = (lam - lam0) / (lam1 - lam0)
             raise exc
     return x, report
 
 
 def solve_nonlinear_tier(
-    s: CaseSystem, forces_n, increments: int = NONLINEAR_INCREMENTS, log: Callable[[str], None] = lambda m: None, max_iterations: int = 12
+    s: CaseSystem,
+    forces_n,
+    increments: int = NONLINEAR_INCREMENTS,
+    log: Callable[[str], None] = lambda m: None,
+    max_iterations: int = NONLINEAR_MAX_ITERATIONS,
+    min_step_n: float = NONLINEAR_MIN_STEP_N,
 ) -> tuple[np.ndarray, list[dict]]:
     """Finite-strain states (K, n) at each force (NaN rows where not converged), and a report per force.
 
-    Mixed neo-Hookean (:mod:`fem.nonlinear`), dead loads. The forces are visited in increasing
-    order, each solve continued from the previous state (gravity and the force ramped from zero
-    for the first), in ``increments`` load steps halved on failure (:class:`_Newton`). A force
-    whose solve fails is recorded as not converged with the solver's message, and so is every
-    larger one (its load path passes through the failure). Report per force: converged,
-    increments, Newton iterations, cuts, seconds, ``min_det_f`` (:func:`min_det_f`); if not
-    converged, the message and (for the
-    force that failed) the largest force reached, ``reached_n``. max_iterations: per Newton solve.
+    Mixed neo-Hookean (:mod:`fem.nonlinear`) under dead loads: the lateral force keeps its
+    direction (+x) and its traction its distribution over the undeformed band as the body bends or
+    tilts, as a pusher or a probe dragged along x applies it (a follower traction would turn with
+    the face). Gravity is applied first (one ramp, its own increments), then the force is continued
+    from 0 through the forces in increasing order (:func:`_load_path`, a secant predictor across the
+    whole path), the first step to each force 1 / ``increments`` of the way, halved on failure down to
+    ``min_step_n`` newtons (:class:`_Newton`). A force whose solve fails is recorded as not
+    converged with the solver's message, and so is every larger one (its load path passes through
+    the failure). Report per force: converged, increments, Newton iterations, cuts, seconds,
+    ``min_det_f`` (:func:`min_det_f`); if not converged, the message and (for the force that
+    failed) the largest force reached, ``reached_n``. max_iterations: per Newton solve.
     """
     from fem.nonlinear import SolverError
 
@@ -653,31 +818,39 @@ def solve_nonlinear_tier(
     s.d.pressure_scale = float(np.max(s.mu))  # the scaling of fem.nonlinear.residual_and_tangent's unknowns
     states = np.full((len(forces), n), np.nan)
     reports: list[dict] = [{} for _ in forces]
-    x, f_prev, failed = np.zeros(n), 0.0, None
+    failed = None
+    t0 = time.perf_counter()
+    try:  # gravity alone (a few mN, 3 Newton iterations): the start of the force path; max_iterations is for the forces
+        x, rep_g = _load_path(s, np.zeros(n), lambda t: t * s.gravity, 0.0, 1.0, 1.0, 1.0 / 16, f"{s.case} (nonlinear) under gravity")
+    except SolverError as exc:
+        failed, x, rep_g = 0.0, None, {"message": str(exc)}
+    history: list = [(0.0, x)]
+    f_prev, pending = 0.0, dict(rep_g)
     for k in order:
         f_k = forces[k]
         if failed is not None:
-            reports[k] = {"converged": False, "message": f"not attempted: the load path failed on the way to {failed:g} N"}
+            why = f"the load path failed on the way to {failed:g} N" if failed > 0 else f"gravity alone did not converge: {rep_g['message']}"
+            reports[k] = {"converged": False, "message": f"not attempted: {why}"}
             continue
-        if f_prev == 0.0:  # first step: gravity and force ramped together from the unloaded state
-
-            def external(t, f_k=f_k):
-                return t * (s.gravity + f_k * s.unit_force)
-
-        else:
-
-            def external(t, f_k=f_k, f_prev=f_prev):
-                return s.gravity + (f_prev + t * (f_k - f_prev)) * s.unit_force
-
-        t0 = time.perf_counter()
+        if f_k == f_prev and f_prev > 0:  # a repeated force: the same state
+            states[k], reports[k] = x, dict(reports[order[list(order).index(k) - 1]])
+            continue
+        t0 = time.perf_counter() if f_prev > 0 else t0
+        span = f_k - f_prev
         try:
-            x_new, rep = _load_path(s, x, external, increments, 1.0 / (increments * 16), f"{s.case} (nonlinear) at {f_k:g} N", max_iterations)
+            x_new, rep = _load_path(
+                s, x, lambda f: s.gravity + f * s.unit_force, f_prev, f_k, span / increments, min(min_step_n, span / increments),
+                f"{s.case} (nonlinear) at {f_k:g} N", max_iterations, history, max_step=max(span / 2, f_prev / 2), log=log,
+            )
         except SolverError as exc:
             failed = f_k
-            reached = f_prev + getattr(exc, "load_factor_reached", 0.0) * (f_k - f_prev)
+            reached = f_prev + getattr(exc, "load_factor_reached", 0.0) * span
             reports[k] = {"converged": False, "message": str(exc), "reached_n": reached, "seconds": time.perf_counter() - t0}
             log(f"verify_s2: {exc}")
             continue
+        if pending:  # the gravity ramp's work is reported with the first force
+            rep = {**rep, "gravity_newton_iterations": pending["newton_iterations"]}
+            pending = {}
         x, f_prev = x_new, f_k
         states[k] = x
         reports[k] = {"converged": True, **rep, "min_det_f": min_det_f(s, x), "seconds": time.perf_counter() - t0}
@@ -698,6 +871,52 @@ def profile_points(spec, geom: Geometry) -> np.ndarray:
     """(3, N) m: the slab's top (z = thickness) at y = centre, x over ``profile_x_mm`` (slab coordinates)."""
     x = np.linspace(*spec.profile_x_mm, spec.profile_points) * 1e-3
     return np.stack([x, np.full_like(x, geom.centre_m[1]), np.full_like(x, geom.top_m)])
+
+
+def measure_points(geom: Geometry, case: str, measure: str, spec=None, per_side: int = 17) -> np.ndarray:
+    """(3, N) m: where ``measure`` (:data:`MEASURES`, not "anywhere") samples the displacement.
+
+    "slab_top": :func:`profile_points` (needs spec); "load_height" / "body_top": an even grid over
+    the loaded body's cross-section at :meth:`Geometry.load_z_m` / on its top face (the rod's disc
+    inset to 0.95 of its radius: its side is a polygon of chords), so a grid mean is an area mean.
+    """
+    if measure == "slab_top":
+        return profile_points(spec, geom)
+    if measure not in ("load_height", "body_top"):
+        raise ValueError(f"{measure!r} is not a point-sampled measure; choose one of: slab_top, load_height, body_top")
+    cx, cy = geom.centre_m
+    z = geom.load_z_m(case) if measure == "load_height" else geom.body_top_m(case)
+    if case == "sliding":
+        r = 0.95 * geom.rod_radius_m
+        a = np.linspace(-r, r, per_side)
+        X, Y = np.meshgrid(a, a, indexing="ij")
+        keep = np.hypot(X, Y) <= r * (1 + 1e-12)
+        X, Y = X[keep], Y[keep]
+    else:
+        hx, hy = 0.5 * geom.block_m[0], 0.5 * geom.block_m[1]
+        X, Y = (v.ravel() for v in np.meshgrid(np.linspace(-hx, hx, per_side), np.linspace(-hy, hy, per_side), indexing="ij"))
+    return np.stack([cx + X, cy + Y, np.full(X.shape, z)])
+
+
+def measure_stats(s: "CaseSystem", states: np.ndarray, geom: Geometry, measure: str, spec=None) -> dict:
+    """{"max": (K,), "mean": (K,)} mm: the displacement magnitude's maximum and mean over ``measure``
+    (:data:`MEASURES`) for states (K, n); NaN where a state is NaN.
+
+    "anywhere": the maximum over the P2 nodes (vertices and edge midpoints) and the volume mean over
+    the whole model (slab and body) by quadrature.
+    """
+    if measure != "anywhere":
+        mag = np.linalg.norm(sample_displacement(s, states, measure_points(geom, s.case, measure, spec)), axis=1) * 1e3
+        return {"max": mag.max(axis=1), "mean": mag.mean(axis=1)}
+    nodes = np.concatenate([s.d.u.nodal_dofs, s.d.u.edge_dofs], axis=1)  # (3, P2 nodes)
+    volume = float(Functional(lambda w: 1.0 + 0.0 * w.x[0]).assemble(s.d.u))
+    out = {"max": np.full(len(states), np.nan), "mean": np.full(len(states), np.nan)}
+    for k, x in enumerate(states):
+        if not np.all(np.isfinite(x)):
+            continue
+        out["max"][k] = np.linalg.norm(x[nodes], axis=0).max() * 1e3
+        out["mean"][k] = float(Functional(lambda w: np.sqrt(np.einsum("i...,i...", w.u, w.u))).assemble(s.d.u, u=s.d.u.interpolate(x[: s.d.n_u]))) / volume * 1e3
+    return out
 
 
 def _nudged_inside(mesh: CaseMesh, points: np.ndarray, tol: float = 1e-8) -> np.ndarray:
@@ -758,6 +977,7 @@ class VerifyS2Result:
     x_slab_mm: np.ndarray
     x_spec_mm: np.ndarray
     displacement_mm: dict = field(default_factory=dict)
+    measured_mm: dict = field(default_factory=dict)  # (tier, case) -> {"max": (K,), "mean": (K,)} over reading.measure
     converged: dict = field(default_factory=dict)
     mesh: dict = field(default_factory=dict)
     linear: dict = field(default_factory=dict)
@@ -765,6 +985,7 @@ class VerifyS2Result:
     checks: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
     messages: list = field(default_factory=list)
+    reading: Reading = field(default_factory=lambda: Reading(measure="slab_top"))
 
     @property
     def tiers(self) -> tuple[str, ...]:
@@ -774,12 +995,17 @@ class VerifyS2Result:
         """(K, N) displacement magnitude along the profile."""
         return np.linalg.norm(self.displacement_mm[(tier, case)], axis=1)
 
-    def ratio(self, tier: str, stat: str = "max") -> np.ndarray:
-        """(K,) sliding over pressing of the profile's max (``stat="max"``) or mean displacement magnitude."""
+    def measured(self, tier: str, case: str, stat: str = "max") -> np.ndarray:
+        """(K,) mm: the max (``stat="max"``) or mean displacement magnitude over the reading's measure
+        (the slab's top profile where ``measured_mm`` has no entry)."""
+        if (tier, case) in self.measured_mm:
+            return np.asarray(self.measured_mm[(tier, case)][stat])
         reduce = np.max if stat == "max" else np.mean
-        a = reduce(self.magnitude_mm(tier, "sliding"), axis=1)
-        b = reduce(self.magnitude_mm(tier, "pressing"), axis=1)
-        return a / b
+        return reduce(self.magnitude_mm(tier, case), axis=1)
+
+    def ratio(self, tier: str, stat: str = "max") -> np.ndarray:
+        """(K,) sliding over pressing of the measured max (``stat="max"``) or mean displacement magnitude."""
+        return self.measured(tier, "sliding", stat) / self.measured(tier, "pressing", stat)
 
 
 def _materials_by_label(spec, materials: Mapping[str, object] | None) -> dict[int, object]:
@@ -795,46 +1021,72 @@ def _materials_by_label(spec, materials: Mapping[str, object] | None) -> dict[in
     return out
 
 
-def run(spec, progress: bool = False, log: Callable[[str], None] = print, materials: Mapping[str, object] | None = None) -> VerifyS2Result:
+def nonlinear_edge_length_mm(spec) -> float:
+    """The nonlinear tier's mesh size: ``spec.nonlinear_edge_length_mm`` where the schema has it
+    and it is set, else :data:`NONLINEAR_EDGE_MM` (coarser than the linear tier's: see there)."""
+    value = getattr(spec, "nonlinear_edge_length_mm", None)
+    return NONLINEAR_EDGE_MM if value is None else float(value)
+
+
+def run(
+    spec,
+    progress: bool = False,
+    log: Callable[[str], None] = print,
+    materials: Mapping[str, object] | None = None,
+    reading: Reading | None = None,
+) -> VerifyS2Result:
     """Run the SPEC 1.4 verification case: both meshes, every tier of ``spec.tiers``, every force.
 
     spec: :class:`mlsim.scene.VerifyS2Spec` (mm). materials: {name: Material} to resolve
     ``slab_material`` and ``block_material`` (default: the shipped table; pass the scene's resolved
-    materials to honour its overrides). Returns a :class:`VerifyS2Result`.
+    materials to honour its overrides). reading: :class:`Reading` (default: the spec's, see
+    :meth:`Reading.from_spec`). The linear tier meshes at ``edge_length_mm``, the nonlinear one at
+    :func:`nonlinear_edge_length_mm`; the load band (its half-width from ``edge_length_mm``) is the
+    same on both. Returns a :class:`VerifyS2Result`.
     """
     from tqdm.auto import tqdm
 
     t_all = time.perf_counter()
-    geom = Geometry.from_spec(spec)
-    edge_m = spec.edge_length_mm * 1e-3
+    reading = Reading.from_spec(spec) if reading is None else reading
+    geom = Geometry.from_spec(spec, reading=reading)
+    edges_mm = {tier: (spec.edge_length_mm if tier == "linear" else nonlinear_edge_length_mm(spec)) for tier in spec.tiers}
     by_label = _materials_by_label(spec, materials)
     forces = np.asarray(spec.forces_n, dtype=float)
     pts = profile_points(spec, geom)
     x_slab_mm = pts[0] * 1e3
-    result = VerifyS2Result(spec, forces, x_slab_mm, x_slab_mm - (geom.centre_m[0] * 1e3 - SPEC_ROD_CENTRE_X_MM))
-    steps = len(CASES) * (2 + len(spec.tiers))
+    result = VerifyS2Result(spec, forces, x_slab_mm, x_slab_mm - (geom.centre_m[0] * 1e3 - SPEC_ROD_CENTRE_X_MM), reading=reading)
+    steps = len(CASES) * 3 * len(spec.tiers)
     bar = tqdm(total=steps, desc="verify_s2", disable=None if progress else True, leave=False)
+    systems: dict = {}
     try:
         for case in CASES:
-            t0 = time.perf_counter()
-            mesh = sliding_mesh(geom, edge_m) if case == "sliding" else pressing_mesh(geom, edge_m)
-            result.seconds[f"mesh_{case}"] = time.perf_counter() - t0
-            bar.update(1)
-            t0 = time.perf_counter()
-            s = build_system(mesh, geom, by_label)
-            result.seconds[f"assemble_{case}"] = time.perf_counter() - t0
-            result.mesh[case] = {**mesh.info, "dofs": int(s.d.n_dofs), "band_area_mm2": s.band_area_m2 * 1e6}
-            log(f"verify_s2: {case}: {mesh.info['tets']} tets, {s.d.n_dofs} DOFs (P2P1)")
-            bar.update(1)
             for tier in spec.tiers:
+                edge_mm = edges_mm[tier]
+                key = f"{case}_{edge_mm:g}mm"
+                if (case, edge_mm) not in systems:
+                    t0 = time.perf_counter()
+                    mesh = sliding_mesh(geom, edge_mm * 1e-3) if case == "sliding" else pressing_mesh(geom, edge_mm * 1e-3)
+                    result.seconds[f"mesh_{key}"] = time.perf_counter() - t0
+                    t0 = time.perf_counter()
+                    systems[(case, edge_mm)] = build_system(mesh, geom, by_label, reading.load_distribution)
+                    sys_ = systems[(case, edge_mm)]
+                    result.seconds[f"assemble_{key}"] = time.perf_counter() - t0
+                    info = {**mesh.info, "dofs": int(sys_.d.n_dofs), "edge_length_mm": edge_mm}
+                    info["slice_volume_mm3" if reading.load_distribution == "slice" else "band_area_mm2"] = sys_.band_area_m2 * (1e9 if reading.load_distribution == "slice" else 1e6)
+                    result.mesh[case if tier == "linear" or len(edges_mm) == 1 else f"{case}_{tier}"] = info
+                    log(f"verify_s2: {case}: {mesh.info['tets']} tets, {sys_.d.n_dofs} DOFs (P2P1, edge {edge_mm:g} mm)")
+                else:
+                    result.mesh[f"{case}_{tier}"] = result.mesh[case]
+                bar.update(2)
+                s = systems[(case, edge_mm)]
                 t0 = time.perf_counter()
                 if tier == "linear":
                     states, rep = solve_linear_tier(s, forces)
                     result.linear[case] = rep
                     ok = np.ones(len(forces), dtype=bool)
-                    if case == "pressing":
+                    if case == "pressing" and np.any(s.mesh.label == 1):
                         strain = strain_magnitude(s, states[int(np.argmax(forces))])
-                        result.checks["pressing_block_over_slab_max_strain"] = float(strain[mesh.label == 1].max() / strain[mesh.label == 0].max())
+                        result.checks["pressing_block_over_slab_max_strain"] = float(strain[s.mesh.label == 1].max() / strain[s.mesh.label == 0].max())
                 else:
                     states, reps = solve_nonlinear_tier(s, forces, log=log)
                     result.nonlinear[case] = [{"force_n": float(f), **r} for f, r in zip(forces, reps)]
@@ -849,6 +1101,7 @@ def run(spec, progress: bool = False, log: Callable[[str], None] = print, materi
                             )
                 result.seconds[f"{tier}_{case}"] = time.perf_counter() - t0
                 result.displacement_mm[(tier, case)] = sample_displacement(s, states, pts) * 1e3
+                result.measured_mm[(tier, case)] = measure_stats(s, states, geom, reading.measure, spec)
                 result.converged[(tier, case)] = ok
                 bar.update(1)
     finally:
@@ -873,6 +1126,10 @@ def summary(result: VerifyS2Result) -> dict:
     max_mm = {
         t: {c: _per_force(result.forces_n, result.magnitude_mm(t, c).max(axis=1)) for c in CASES} for t in result.tiers
     }
+    measured = {
+        t: {c: {stat: _per_force(result.forces_n, result.measured(t, c, stat)) for stat in ("max", "mean")} for c in CASES}
+        for t in result.tiers
+    }
     not_converged = [
         {"tier": t, "case": c, "force_n": float(f)}
         for (t, c), ok in result.converged.items()
@@ -882,6 +1139,8 @@ def summary(result: VerifyS2Result) -> dict:
     return {
         "ratio_max_sliding_over_pressing": ratio_max,
         "ratio_mean_sliding_over_pressing": ratio_mean,
+        "reading": {"measure": result.reading.measure, "load_distribution": result.reading.load_distribution, "force_at": result.reading.force_at},
+        "measured_displacement_mm": measured,
         "max_displacement_mm": max_mm,
         "mesh": result.mesh,
         "linear_solves": result.linear,
@@ -917,12 +1176,14 @@ def _profiles_csv(result: VerifyS2Result) -> str:
 
 
 def _ratio_csv(result: VerifyS2Result) -> str:
-    lines = ["tier,force_n,sliding_max_u_mm,pressing_max_u_mm,ratio_max,sliding_mean_u_mm,pressing_mean_u_mm,ratio_mean"]
+    # the displacements are measured where the reading says (result.reading.measure), written in each row
+    lines = ["tier,measure,force_n,sliding_max_u_mm,pressing_max_u_mm,ratio_max,sliding_mean_u_mm,pressing_mean_u_mm,ratio_mean"]
     for tier in result.tiers:
-        s, p = result.magnitude_mm(tier, "sliding"), result.magnitude_mm(tier, "pressing")
+        s = {stat: result.measured(tier, "sliding", stat) for stat in ("max", "mean")}
+        p = {stat: result.measured(tier, "pressing", stat) for stat in ("max", "mean")}
         for k, f in enumerate(result.forces_n):
-            vals = [s[k].max(), p[k].max(), s[k].max() / p[k].max(), s[k].mean(), p[k].mean(), s[k].mean() / p[k].mean()]
-            lines.append(f"{tier},{f:g}," + ",".join(f"{v:.9g}" for v in vals))
+            vals = [s["max"][k], p["max"][k], s["max"][k] / p["max"][k], s["mean"][k], p["mean"][k], s["mean"][k] / p["mean"][k]]
+            lines.append(f"{tier},{result.reading.measure},{f:g}," + ",".join(f"{v:.9g}" for v in vals))
     return "\n".join(lines) + "\n"
 
 

@@ -315,15 +315,21 @@ class VerifyS2Spec(_Model):
     slab_material: str = "PDMS"
     block_material: str = "steel"
     edge_length_mm: Pos = 0.5
-    # the nonlinear tier converges only at the smallest forces on the bonded sharp edges (see the scene)
+    # the nonlinear tier meshes coarser (fem.verify_s2.NONLINEAR_EDGE_MM when None)
+    nonlinear_edge_length_mm: Pos | None = 1.0
     tiers: Annotated[tuple[Literal["linear", "nonlinear"], ...], Field(min_length=1)] = ("linear",)
+    # the reading of SPEC 1.4 (fem.verify_s2.Reading): where the displacement is measured, how the
+    # force is spread, where it acts
+    measure: Literal["slab_top", "load_height", "body_top", "anywhere"] = "slab_top"
+    load_distribution: Literal["band", "pushed_side", "slice"] = "band"
+    force_at: Literal["height", "top"] = "height"
 
     @model_validator(mode="after")
     def _fits(self):
         sx, sy, _ = self.slab_size_mm
         if self.rod_diameter_mm >= min(sx, sy) or max(self.block_size_mm[:2]) >= min(sx, sy):
             raise ValueError("the rod and the block must fit on the slab: rod_diameter_mm and block_size_mm[:2] < slab_size_mm[:2]")
-        if self.force_height_mm >= min(self.rod_height_mm, self.block_size_mm[2]):
+        if self.force_at == "height" and self.force_height_mm >= min(self.rod_height_mm, self.block_size_mm[2]):
             raise ValueError("force_height_mm must be below the rod's and the block's tops")
         return self
 
@@ -491,6 +497,11 @@ class SolveFidelity(_Model):
     # linear/reduced tiers: refuse a step where a contact point moves more than this fraction of the
     # rod height (small-strain kinematics are no longer valid there; see fem.quasistatic)
     small_strain_limit: Annotated[float, Strict(), Field(gt=0.0, le=10.0)] = 0.5
+    # linear/reduced tiers' contact step: "admm" (bounded work on the Delassus operator, fem.contact_admm)
+    # or "newton" (semi-smooth Newton on the penalty law smoothed over 1e-7 h, fem.condensed; slower,
+    # kept for comparison). Both solve the contact law the nonlinear tier solves.
+    contact_solver: Literal["admm", "newton"] = "admm"
+    contact_max_iterations: Annotated[int, Strict(), Field(ge=1, le=100000)] = 200  # per linearisation (admm)
 
 
 class RenderFidelity(_Model):

@@ -114,9 +114,11 @@ def test_force_controlled_press_reaches_the_ramp(tiny_mesh, body):
     on = ep.t_s > 0
     np.testing.assert_allclose(ep.normal_force_n[on], target[on], rtol=1e-5)
     np.testing.assert_allclose(ep.force_target_n[on], target[on], rtol=1e-12)
-    # the punch sinks as the force grows, and holds its height while the force is held
+    # the punch sinks as the force grows, and holds its height while the force is held (to 1 nm: the
+    # height is found again at each step from an iterative contact solve with a force tolerance)
     z = ep.pose[:, 2]
-    assert np.all(np.diff(z[on]) <= 1e-12)
+    assert np.all(np.diff(z[on]) <= 1e-9)
+    assert np.ptp(z[ep.t_s > 0.1 + 1e-9]) < 1e-9
 
 
 def test_reduced_tier_agrees_with_linear_on_a_uniform_press(tiny_mesh, body):

@@ -274,3 +274,101 @@ def test_scene_file_holds_the_spec_defaults():
     scene = scene_from_dict(data)
     assert scene.verify_s2 == VerifyS2Spec()
     assert set(data["verify_s2"]) == set(VerifyS2Spec.model_fields)  # every default written out
+
+
+# --------------------------------------------------------------------------- readings of SPEC 1.4
+def test_reading_is_validated_and_read_from_the_scene():
+    with pytest.raises(ValueError, match=r"verify_s2.measure = 'rod'.*choose one of: slab_top, load_height, body_top, anywhere"):
+        v.Reading(measure="rod")
+    with pytest.raises(ValueError, match=r"verify_s2.force_at"):
+        v.Reading(force_at="middle")
+    assert v.Reading.from_spec(SPEC) == v.Reading() == v.Reading(measure="slab_top", load_distribution="band", force_at="height")
+    spec = VerifyS2Spec(measure="body_top", load_distribution="slice", force_at="top")
+    assert v.Reading.from_spec(spec) == v.Reading("body_top", "slice", "top")
+    # the scene refuses a reading it does not know, naming the field
+    with pytest.raises(ValueError, match="measure"):
+        VerifyS2Spec(measure="rod")
+
+
+def _resultant_and_arm(s, geom, case):
+    comp = dof_components(s.d.u)
+    f = s.unit_force[: s.d.n_u]
+    resultant = np.array([f[comp == c].sum() for c in range(3)])
+    arm_mm = float(f[comp == 0] @ ((s.d.u.doflocs[2, comp == 0] - geom.top_m) * 1e3))
+    return resultant, arm_mm
+
+
+@pytest.mark.parametrize("distribution", ["pushed_side", "slice"])
+def test_other_load_distributions_keep_the_resultant_and_its_line(distribution, pressing):
+    """On the block's exact mesh: 1 N along +x with the same moment arm (2 mm) as the band;
+    the pushed side is the block's -x face only (2 mm x 1 mm), the slice the block's 4 mm^2 x 1 mm."""
+    s = v.build_system(pressing.mesh, GEOM, MATERIALS, distribution)
+    resultant, arm_mm = _resultant_and_arm(s, GEOM, "pressing")
+    assert resultant == pytest.approx([1.0, 0.0, 0.0], abs=1e-12)
+    assert arm_mm == pytest.approx(2.0, rel=1e-9)
+    assert s.band_area_m2 * (1e9 if distribution == "slice" else 1e6) == pytest.approx(4.0 if distribution == "slice" else 2.0, rel=1e-12)
+    if distribution == "pushed_side":  # every loaded DOF lies on the block's -x face
+        loaded = np.abs(s.unit_force[: s.d.n_u]) > 0
+        assert np.abs(s.d.u.doflocs[0, loaded] * 1e3 - 4.0).max() < 1e-12
+
+
+def test_force_at_the_top_moves_the_band_to_the_bodys_top(pressing):
+    geom = v.Geometry.from_spec(SPEC, reading=v.Reading(force_at="top"))
+    assert geom.band_m("pressing") == pytest.approx((5.0e-3, 6.0e-3)) and geom.band_m("sliding") == pytest.approx((9.0e-3, 10.0e-3))
+    mesh = v.pressing_mesh(geom, EDGE_MM * 1e-3)
+    s = v.build_system(mesh, geom, MATERIALS)
+    resultant, arm_mm = _resultant_and_arm(s, geom, "pressing")
+    assert resultant[0] == pytest.approx(1.0, abs=1e-12)
+    assert arm_mm == pytest.approx(3.5, rel=1e-9)  # the band's centre, 0.5 mm below the 4 mm block's top
+
+
+def test_measures_of_the_linear_tier(pressing, sliding):
+    """Each measure is affine in F (the linear tier); the maximum anywhere bounds every sampled
+    measure; the rigid block's top moves more than the slab's top under it (it tilts)."""
+    forces = np.array([0.0, 1.0, 3.0])
+    stats = {}
+    for case, s in (("pressing", pressing), ("sliding", sliding)):
+        states, _ = v.solve_linear_tier(s, forces)
+        for m in v.MEASURES:
+            stats[case, m] = v.measure_stats(s, states, GEOM, m, SPEC)
+        for m in ("load_height", "body_top"):
+            u = v.sample_displacement(s, states, v.measure_points(GEOM, case, m, SPEC))
+            per_n = (u[1:] - u[0]) / forces[1:, None, None]
+            assert np.abs(per_n[1] - per_n[0]).max() <= 1e-9 * np.abs(per_n).max()
+        for m in ("slab_top", "load_height", "body_top"):
+            assert np.all(stats[case, "anywhere"]["max"][1:] >= stats[case, m]["max"][1:] * (1 - 1e-3))
+    assert np.all(stats["pressing", "body_top"]["max"][1:] > 2 * stats["pressing", "slab_top"]["max"][1:])
+
+
+def test_run_honours_the_reading(tmp_path):
+    spec = SPEC.model_copy(update={"tiers": ("linear",), "forces_n": (1.0, 2.0)})
+    result = v.run(spec, log=lambda m: None, reading=v.Reading(measure="body_top"))
+    summary = v.summary(result)
+    assert summary["reading"] == {"measure": "body_top", "load_distribution": "band", "force_at": "height"}
+    top = {c: summary["measured_displacement_mm"]["linear"][c]["max"] for c in v.CASES}
+    assert summary["ratio_max_sliding_over_pressing"]["linear"]["2"] == pytest.approx(top["sliding"]["2"] / top["pressing"]["2"], rel=1e-12)
+    # the profile along the slab's top (SPEC 1.4's plot) is written whatever the measure
+    assert result.displacement_mm[("linear", "sliding")].shape == (2, 3, SPEC.profile_points)
+    rows = (v.write(result, tmp_path)[1]).read_text().splitlines()
+    assert rows[0].startswith("tier,measure,") and rows[1].startswith("linear,body_top,1,")
+
+
+def test_nonlinear_block_tilts_as_a_rigid_body(pressing):
+    """At 0.3 N the steel block tilts by about 15 degrees on the PDMS: its vertices still follow a
+    finite rigid motion x = R X + t (Kabsch fit) to 1e-4 of their displacement, and the tilt is
+    about y and tips the +x edge down (the linear tier's sense)."""
+    states, (report,) = v.solve_nonlinear_tier(pressing, [0.3], increments=2)
+    assert report["converged"]
+    x = states[0]
+    nodes = np.unique(pressing.mesh.tets[pressing.mesh.label == 1])
+    X = pressing.mesh.points[nodes]
+    u = x[pressing.d.u.nodal_dofs[:, nodes]].T
+    P, Q = X - X.mean(axis=0), X + u - (X + u).mean(axis=0)
+    U, _, Vt = np.linalg.svd(P.T @ Q)
+    R = (U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt).T
+    misfit = np.abs(P @ R.T - Q).max()
+    assert misfit < 1e-4 * np.abs(u).max()
+    tilt = math.atan2(R[0, 2], R[2, 2])  # rotation about y: +x edge down is a positive angle
+    assert 0.05 < tilt < 1.0
+    # about y only, to the mesh's asymmetry (six tets per hexahedron are not mirror-symmetric in y)
+    assert abs(R[1, 0]) < 0.02 * tilt and abs(R[1, 2]) < 0.02 * tilt

@@ -1,0 +1,246 @@
+"""The ADMM contact solver on the Delassus operator (fem.contact_admm): the cone projection, closed-form
+single-point answers (penalty press, stick, slip), the grouped (Woodbury) operator against the dense
+one, bounded work with its residual reported, warm starts, and a whole episode against the Newton
+solver."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fem import contact_admm as ca
+from fem import quasistatic as qs
+from mlsim.scene import scene_from_dict
+
+MU = 0.8
+
+
+def _normals(m, rng):
+    n = rng.standard_normal((m, 3))
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+# ------------------------------------------------------------------------------ the cone projection
+def test_projection_onto_the_cone_is_a_projection():
+    rng = np.random.default_rng(0)
+    v, n = rng.standard_normal((2000, 3)), _normals(2000, rng)
+    p = ca.project_cone(v, n, MU)
+    pn = np.einsum("ij,ij->i", p, n)
+    pt = np.linalg.norm(p - pn[:, None] * n, axis=1)
+    assert np.all(pt <= MU * pn + 1e-12)  # in the cone
+    np.testing.assert_allclose(ca.project_cone(p, n, MU), p, atol=1e-12)  # idempotent
+    # Moreau: v - P v is orthogonal to P v and lies in the polar cone (-K*)
+    r = v - p
+    np.testing.assert_allclose(np.einsum("ij,ij->i", r, p), 0.0, atol=1e-12)
+    rn = np.einsum("ij,ij->i", r, n)
+    rt = np.linalg.norm(r - rn[:, None] * n, axis=1)
+    assert np.all(MU * rt <= -rn + 1e-12)
+    # the projection is the nearest point of the cone: no sampled cone point is nearer
+    t = rng.standard_normal((2000, 3))
+    q = ca.project_cone(t, n, MU)
+    assert np.all(np.linalg.norm(v - p, axis=1) <= np.linalg.norm(v - q, axis=1) + 1e-12)
+
+
+def test_de_saxce_correction_is_mu_times_the_tangential_size_along_n():
+    rng = np.random.default_rng(1)
+    s, n = rng.standard_normal((50, 3)), _normals(50, rng)
+    g = ca.de_saxce(s, n, MU)
+    st = s - np.einsum("ij,ij->i", s, n)[:, None] * n
+    np.testing.assert_allclose(g, MU * np.linalg.norm(st, axis=1)[:, None] * n, atol=1e-15)
+
+
+# -------------------------------------------------------------------------- closed-form single points
+def _one_point(c_m_n=2e-4, k_n_m=1e5):
+    return ca.DenseDelassus(np.eye(3) * c_m_n, np.array([k_n_m]))
+
+
+@pytest.mark.parametrize("penetration_m", [1e-6, 1e-4])
+def test_a_pressed_point_carries_the_force_of_its_springs_in_series(penetration_m):
+    """Body compliance c and penalty 1/k in series, pushed a distance delta into a flat indenter:
+    f_n = delta / (c + 1/k)."""
+    G = _one_point()
+    n = np.array([[0.0, 0.0, 1.0]])
+    b = np.array([[0.0, 0.0, -penetration_m]])
+    f, *_ = ca.admm_contact(G, b, n, MU, rtol=1e-10, max_iterations=5000)
+    np.testing.assert_allclose(f[0], [0.0, 0.0, penetration_m / (2e-4 + 1e-5)], rtol=1e-8)
+
+
+@pytest.mark.parametrize("drag_m, sticks", [(1e-6, True), (1e-3, False)])
+def test_a_dragged_point_sticks_or_slips_by_coulomb(drag_m, sticks):
+    """Pressed by delta and dragged sideways by d: sticking needs the force d / (c + 1/k) <= mu f_n,
+    else the point slips with |f_T| = mu f_n against the drag."""
+    G = _one_point()
+    n = np.array([[0.0, 0.0, 1.0]])
+    delta = 2e-5
+    b = np.array([[drag_m, 0.0, -delta]])  # sigma = G f + b: the drag is the body's slip without force
+    f, *_ = ca.admm_contact(G, b, n, MU, rtol=1e-10, max_iterations=5000)
+    fn = delta / 2.1e-4
+    assert f[0, 2] == pytest.approx(fn, rel=1e-8)
+    if sticks:
+        assert f[0, 0] == pytest.approx(-drag_m / 2.1e-4, rel=1e-8)
+        assert abs(f[0, 0]) < MU * fn
+    else:
+        assert f[0, 0] == pytest.approx(-MU * fn, rel=1e-8)
+    assert abs(f[0, 1]) < 1e-12 * fn
+
+
+def test_a_point_away_from_the_indenter_carries_nothing():
+    G = _one_point()
+    f, *_ = ca.admm_contact(G, np.array([[1e-5, 0.0, 1e-6]]), np.array([[0.0, 0.0, 1.0]]), MU, rtol=1e-10, max_iterations=5000)
+    np.testing.assert_allclose(f, 0.0, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------------- coupled points
+def _random_compliance(m, rng, scale=1e-4):
+    A = rng.standard_normal((3 * m, 3 * m))
+    return scale * (A @ A.T / (3 * m) + 0.1 * np.eye(3 * m))
+
+
+def test_coupled_points_satisfy_the_friction_problem():
+    """A random coupled problem: the answer is in the cones, sigma + Gamma(sigma) in the dual cones,
+    and complementary, to the tolerance."""
+    rng = np.random.default_rng(2)
+    m = 30
+    G = ca.DenseDelassus(_random_compliance(m, rng), np.full(m, 1e5))
+    n = np.tile([0.0, 0.0, 1.0], (m, 1))
+    b = 1e-5 * rng.standard_normal((m, 3)) - np.array([0.0, 0.0, 1e-5])
+    f, z, rung, it, res, tol = ca.admm_contact(G, b, n, MU, rtol=1e-9, max_iterations=20000)
+    assert res <= tol and it < 20000
+    sigma = G.apply(f) + b
+    s = sigma + ca.de_saxce(sigma, n, MU)
+    assert np.all(np.linalg.norm(f[:, :2], axis=1) <= MU * f[:, 2] * (1 + 1e-9) + 1e-12)
+    assert np.all(MU * np.linalg.norm(s[:, :2], axis=1) <= s[:, 2] + 1e-6 * np.abs(sigma).max())
+    assert abs(np.sum(f * s)) <= 1e-7 * np.abs(f).max() * np.abs(sigma).max() * m
+    assert f[:, 2].max() > 0 and (f[:, 2] == 0).any()  # some points touch, some do not
+
+
+def test_the_grouped_operator_is_the_dense_one_of_its_lifted_compliance():
+    """Points moving with their patches: G = L C_p L^T + diag(1/k). The Woodbury solve and the
+    product equal the dense operator's."""
+    rng = np.random.default_rng(3)
+    M, m = 6, 20
+    Cp = _random_compliance(M, rng)
+    groups = np.concatenate([np.arange(M), rng.integers(0, M, m - M)])
+    k = rng.uniform(5e4, 2e5, m)
+    L = np.zeros((3 * m, 3 * M))
+    for i, g in enumerate(groups):
+        L[3 * i : 3 * i + 3, 3 * g : 3 * g + 3] = np.eye(3)
+    dense = ca.DenseDelassus(L @ Cp @ L.T, k)
+    grouped = ca.GroupedDelassus(Cp, groups, k)
+    r = rng.standard_normal((m, 3))
+    np.testing.assert_allclose(grouped.apply(r), dense.apply(r), rtol=1e-12)
+    for rung in (-4, 0, 3):
+        np.testing.assert_allclose(grouped.solve(r, rung), dense.solve(r, rung), rtol=1e-9)
+    assert grouped.lambda_min() == pytest.approx(dense.lambda_min())
+
+
+# ---------------------------------------------------------------------------------- bounded work
+def test_the_iteration_bound_holds_and_the_residual_is_reported():
+    rng = np.random.default_rng(4)
+    m = 30
+    G = ca.DenseDelassus(_random_compliance(m, rng, 1e-2), np.full(m, 1e7))  # badly conditioned
+    n = np.tile([0.0, 0.0, 1.0], (m, 1))
+    b = 1e-4 * rng.standard_normal((m, 3))
+    f, z, rung, it, res, tol = ca.admm_contact(G, b, n, MU, rtol=1e-12, max_iterations=7)
+    assert it == 7 and res > tol  # stopped at the bound and said so
+    assert np.all(np.isfinite(f))
+
+
+def test_a_warm_start_from_the_answer_converges_at_once():
+    rng = np.random.default_rng(5)
+    m = 30
+    G = ca.DenseDelassus(_random_compliance(m, rng), np.full(m, 1e5))
+    n = np.tile([0.0, 0.0, 1.0], (m, 1))
+    b = 1e-5 * rng.standard_normal((m, 3)) - np.array([0.0, 0.0, 1e-5])
+    f, z, rung, it, res, tol = ca.admm_contact(G, b, n, MU, rtol=1e-8, max_iterations=20000)
+    f2, z2, _, it2, res2, tol2 = ca.admm_contact(G, b, n, MU, f, z, rung, rtol=1e-8, max_iterations=20000)
+    assert it > 10 and it2 <= 2
+    np.testing.assert_allclose(f2, f, atol=tol)
+
+
+# --------------------------------------------------------------------------------- whole episodes
+def _scene(tiny_scene, segments, friction):
+    data = tiny_scene.model_dump(mode="json", exclude_none=True)
+    data["load"] = {"indenter": {"shape": "flat", "diameter_mm": 40.0}, "start_xy_mm": [0.0, 0.0], "start_gap_mm": 0.5,
+                    "friction_coefficient": friction, "segments": segments}
+    data["fidelity"]["solve"] = {"tier": "linear", "gravity": False}
+    return scene_from_dict(data)
+
+
+@pytest.fixture(scope="module")
+def body(tiny_mesh):
+    scene, _, mesh, _ = tiny_mesh
+    lame, rho, _ = qs.layer_materials(scene)
+    return qs.LinearBody(mesh, lame, rho, "P2P1", gravity=False)
+
+
+PRESS_HOLD = [{"kind": "press", "depth_mm": 0.7, "speed_mm_s": 7.0}, {"kind": "hold", "duration_s": 0.1}]
+
+
+def test_frictionless_press_admm_agrees_with_newton(tiny_mesh, body):
+    """Frictionless punch on the four tips: both solvers solve the same penalty problem (Newton's
+    smoothing length, 1e-7 h, is far below the penetration here), so forces agree to 0.5 %; the
+    ADMM steps stay within their bound; no gravity: the clamp balances the contact force."""
+    scene0, _, mesh, _ = tiny_mesh
+    scene = _scene(scene0, PRESS_HOLD, 0.0)
+    st = qs.SolveSettings(tier="linear", gravity=False)
+    newton = qs.run_episode(scene, mesh, body=body, settings=st)
+    admm = qs.run_episode(scene, mesh, body=body, settings=dataclasses.replace(st, contact_solver="admm"))
+    on = newton.normal_force_n > 0.05 * newton.normal_force_n.max()
+    assert on.sum() >= 4
+    np.testing.assert_allclose(admm.normal_force_n[on], newton.normal_force_n[on], rtol=5e-3)
+    np.testing.assert_allclose(admm.rod_force_n[on], newton.rod_force_n[on], atol=5e-3 * np.abs(newton.rod_force_n).max())
+    assert admm.iterations.max() <= st.contact_max_iterations * 6  # the bound: iterations x linearisations
+    np.testing.assert_allclose(admm.reaction_n + admm.contact_force_n, 0.0, atol=1e-8 * admm.normal_force_n.max())
+
+
+def test_hold_steps_start_from_their_answer(tiny_mesh, body):
+    """With friction, a hold repeats the last step's problem: from the warm start it converges in a
+    few iterations, where the press steps need tens."""
+    scene0, _, mesh, _ = tiny_mesh
+    ep = qs.run_episode(_scene(scene0, PRESS_HOLD, 0.5), mesh, body=body,
+                        settings=qs.SolveSettings(tier="linear", gravity=False, contact_solver="admm"))
+    hold = np.flatnonzero(np.diff(ep.pose[:, 2]) == 0) + 1
+    assert len(hold) >= 3
+    assert np.all(ep.iterations[hold[1:]] <= 10) and ep.iterations[: hold[0]].max() > 20
+
+
+def test_a_slide_sticks_then_slips_by_coulomb(tiny_mesh, body):
+    """tests/test_quasistatic's slide with the ADMM solver: pressed, then slid 8 mm; the friction force
+    is below mu N while the tips stick and bend the rods, and ends at mu N in gross slip (the return
+    map's slip force exactly, to the solver's tolerance) with no point sticking."""
+    scene0, _, mesh, _ = tiny_mesh
+    mu = 0.5
+    segs = [{"kind": "press", "depth_mm": 0.7, "speed_mm_s": 7.0}, {"kind": "slide", "distance_mm": 8.0, "speed_mm_s": 20.0}]
+    data = _scene(scene0, segs, mu).model_dump(mode="json", exclude_none=True)
+    data["fidelity"]["solve"]["substeps"] = 4
+    scene = scene_from_dict(data)
+    ep = qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False, substeps=4, contact_solver="admm"))
+    ratio = np.hypot(ep.contact_force_n[:, 0], ep.contact_force_n[:, 1]) / np.maximum(ep.normal_force_n, 1e-12)
+    first = np.flatnonzero(ep.t_s > 0.1 + 1e-9)[0]
+    assert ratio[first] < 0.5 * mu and ep.stick_fraction[first] > 0.2
+    end_of_slide = np.argmin(abs(ep.t_s - 0.5))
+    assert ratio[end_of_slide] == pytest.approx(mu, rel=1e-3)
+    assert ep.stick_fraction[end_of_slide] == 0.0
+    assert ep.contact_force_n[end_of_slide, 0] > 0  # the probe drags the tips along +x
+
+
+def test_a_bending_load_warns_with_its_estimated_error(tiny_mesh, body):
+    """The tiny scene's own load (a sphere pressed between the rods and slid 4 mm) bends the rods far
+    enough that the linear tier's small-strain kinematics are off (40-70 % against the nonlinear tier,
+    issue 15's diagnosis): the run says so with its estimate; a small press bends nothing and stays quiet."""
+    from mlsim.scene import load_scene
+
+    scene0, _, mesh, _ = tiny_mesh
+    said = []
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "mavig_tiny.toml").with_values({"fidelity.solve.gravity": False})
+    ep = qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False), log=said.append)
+    assert ep.seconds["rod_bending_ratio"] > 0.1  # tips dragged over a millimetre on 9 mm rods
+    assert ep.seconds["geometric_error_estimate"] == pytest.approx(qs.GEOMETRIC_FORCE_ERROR_PER_BEND * ep.seconds["rod_bending_ratio"])
+    assert any("small-strain kinematics" in m and "nonlinear" in m for m in said)
+    said.clear()
+    small = qs.run_episode(_scene(scene0, PRESS_HOLD, 0.5), mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False), log=said.append)
+    assert small.seconds["geometric_error_estimate"] < 0.02 and not any("kinematics" in m for m in said)
