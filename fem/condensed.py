@@ -264,7 +264,7 @@ def solve_points(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, gue
 
 
 def _admm_points(u0, X, shape, pose, pose_old, state, friction, k_n, k_t, guess=None, delassus=None, warm=None, groups=None,
-                 case: str = "contact step", max_iterations: int = 200, admm_rtol: float = 1e-5, **ignored):
+                 case: str = "contact step", max_iterations: int = 200, admm_rtol: float = 1e-4, **ignored):
     """:func:`fem.contact_admm.solve_step` for the unknowns of :func:`_newton_points` (points, or
     patches with ``groups``): same arguments and returns. The penalty is isotropic (k_t = k_n)."""
     from fem import contact_admm

@@ -246,9 +246,9 @@ def admm_contact(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float, f0: np.n
         # stays as it is when rho changes. A ratio of 3 (not Boyd's 10) took 16 % fewer iterations
         # on the default demo's steps.
         if it % 5 == 0:
-            if primal > 3.0 * dual and rung < 24:
+            if primal > 10.0 * dual and rung < 24:
                 rung += 1
-            elif dual > 3.0 * primal and rung > -24:
+            elif dual > 10.0 * primal and rung > -24:
                 rung -= 1
     return y, z, rung, max_iterations, residual, tol
 
