@@ -175,15 +175,18 @@ def cmd_accuracy(args) -> int:
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     rows = solve_accuracy(scene, args.edges, tuple(args.orders), tuple(args.tiers), reference, out_dir, _cache(args),
                           progress=not args.quiet, log=log)
-    print(f"{'edge mm':>8} {'order':>5} {'tier':>9} {'tets':>7} {'ms/frame':>9} {'pre s':>7} " + " ".join(f"{e:>20}" for e in ERRORS))
+    print(f"{'edge mm':>8} {'order':>5} {'tier':>9} {'tets':>7} {'ms/frame':>9} {'pre s':>7} " + " ".join(f"{e:>20}" for e in ERRORS)
+          + f" {'force est.':>10}")
     for r in rows:
         if r.failed:
             print(f"{r.edge_length_mm:>8g} {r.element_order:>5} {r.tier:>9}  failed: {r.failed}")
             continue
         errs = " ".join(f"{r.errors[e]:>19.3e}{'*' if r.errors.get(e + '_pareto') else ' '}" for e in ERRORS)
-        print(f"{r.edge_length_mm:>8g} {r.element_order:>5} {r.tier:>9} {r.n_tets:>7} {r.per_frame_ms:>9.1f} {r.precompute_s:>7.1f} {errs}"
+        est = f"{r.estimated_force_error:>10.2f}" if r.estimated_force_error == r.estimated_force_error else f"{'-':>10}"  # NaN: none
+        print(f"{r.edge_length_mm:>8g} {r.element_order:>5} {r.tier:>9} {r.n_tets:>7} {r.per_frame_ms:>9.1f} {r.precompute_s:>7.1f} {errs} {est}"
               + ("   (reference)" if r.reference else ""))
-    print(f"(* = on the Pareto front)  wrote {out_dir / 'accuracy_solve.csv'}, .json, .png")
+    print(f"(* = on the Pareto front; force est. = the tier's own estimate of its per-rod contact force error from the rods' "
+          f"bending)  wrote {out_dir / 'accuracy_solve.csv'}, .json, .png")
     return EXIT_OK
 
 
