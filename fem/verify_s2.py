@@ -495,19 +495,24 @@ def lateral_band_load(d: Discretisation, facets: np.ndarray, geom: Geometry, cas
     zlo, zhi = geom.band_m(case)
     fb = FacetBasis(d.u.mesh, d.u.elem, facets=facets, intorder=intorder)
 
-    def inside(x):
-        return ((x[2] >= zlo) & (x[2] <= zhi)).astype(float)
+    f, area = _unit_x_load(fb, lambda x: (x[2] >= zlo) & (x[2] <= zhi),
+                           f"{case}: no side facets in the load band z = {zlo * 1e3:.3g}..{zhi * 1e3:.3g} mm: check force_height_mm")
+    return np.concatenate([f, np.zeros(d.n_dofs - d.n_u)]), area
 
-    area = float(Functional(lambda w: inside(w.x)).assemble(fb))
-    if not area > 0:
-        raise MlsimError(f"{case}: no side facets in the load band z = {zlo * 1e3:.3g}..{zhi * 1e3:.3g} mm: check force_height_mm")
+
+def _unit_x_load(basis, inside, empty_message: str) -> tuple[np.ndarray, float]:
+    """1 N along +x spread uniformly over where ``inside(x)`` holds on ``basis`` (facets: a traction;
+    the volume: a body force): (load vector over the basis's DOFs, that area or volume). The indicator
+    and the measure use the same quadrature, so the resultant is exactly 1 N."""
+    measure = float(Functional(lambda w: inside(w.x).astype(float)).assemble(basis))
+    if not measure > 0:
+        raise MlsimError(empty_message)
 
     @LinearForm
-    def unit_traction(v, w):
-        return inside(w.x) * v[0] / area
+    def unit(v, w):
+        return inside(w.x).astype(float) * v[0] / measure
 
-    f = skfem.asm(unit_traction, fb)
-    return np.concatenate([f, np.zeros(d.n_dofs - d.n_u)]), area
+    return skfem.asm(unit, basis), measure
 
 
 def slice_load(d: Discretisation, geom: Geometry, case: str, intorder: int = 7) -> tuple[np.ndarray, float]:
@@ -521,18 +526,8 @@ def slice_load(d: Discretisation, geom: Geometry, case: str, intorder: int = 7) 
     zlo, zhi = geom.band_m(case)
     basis = skfem.Basis(d.u.mesh, d.u.elem, intorder=intorder)
 
-    def inside(x):
-        return ((x[2] >= zlo) & (x[2] <= zhi) & (x[2] > geom.top_m)).astype(float)
-
-    volume = float(Functional(lambda w: inside(w.x)).assemble(basis))
-    if not volume > 0:
-        raise MlsimError(f"{case}: no part of the body in the load slice z = {zlo * 1e3:.3g}..{zhi * 1e3:.3g} mm")
-
-    @LinearForm
-    def unit_body_force(v, w):
-        return inside(w.x) * v[0] / volume
-
-    f = skfem.asm(unit_body_force, basis)
+    f, volume = _unit_x_load(basis, lambda x: (x[2] >= zlo) & (x[2] <= zhi) & (x[2] > geom.top_m),
+                             f"{case}: no part of the body in the load slice z = {zlo * 1e3:.3g}..{zhi * 1e3:.3g} mm")
     return np.concatenate([f, np.zeros(d.n_dofs - d.n_u)]), volume
 
 

@@ -13,7 +13,6 @@ import pytest
 
 from fem import contact_admm as ca
 from fem import quasistatic as qs
-from mlsim.scene import scene_from_dict
 
 MU = 0.8
 
@@ -99,14 +98,19 @@ def _random_compliance(m, rng, scale=1e-4):
     return scale * (A @ A.T / (3 * m) + 0.1 * np.eye(3 * m))
 
 
+def _random_problem(seed, m=30):
+    """A random coupled problem: 30 points under a flat face, some pressed into it, some not."""
+    rng = np.random.default_rng(seed)
+    G = ca.DenseDelassus(_random_compliance(m, rng), np.full(m, 1e5))
+    n = np.tile([0.0, 0.0, 1.0], (m, 1))
+    return G, 1e-5 * rng.standard_normal((m, 3)) - np.array([0.0, 0.0, 1e-5]), n
+
+
 def test_coupled_points_satisfy_the_friction_problem():
     """A random coupled problem: the answer is in the cones, sigma + Gamma(sigma) in the dual cones,
     and complementary, to the tolerance."""
-    rng = np.random.default_rng(2)
-    m = 30
-    G = ca.DenseDelassus(_random_compliance(m, rng), np.full(m, 1e5))
-    n = np.tile([0.0, 0.0, 1.0], (m, 1))
-    b = 1e-5 * rng.standard_normal((m, 3)) - np.array([0.0, 0.0, 1e-5])
+    G, b, n = _random_problem(2)
+    m = len(b)
     f, z, rung, it, res, tol = ca.admm_contact(G, b, n, MU, rtol=1e-9, max_iterations=20000)
     assert res <= tol and it < 20000
     sigma = G.apply(f) + b
@@ -150,11 +154,7 @@ def test_the_iteration_bound_holds_and_the_residual_is_reported():
 
 
 def test_a_warm_start_from_the_answer_converges_at_once():
-    rng = np.random.default_rng(5)
-    m = 30
-    G = ca.DenseDelassus(_random_compliance(m, rng), np.full(m, 1e5))
-    n = np.tile([0.0, 0.0, 1.0], (m, 1))
-    b = 1e-5 * rng.standard_normal((m, 3)) - np.array([0.0, 0.0, 1e-5])
+    G, b, n = _random_problem(5)
     f, z, rung, it, res, tol = ca.admm_contact(G, b, n, MU, rtol=1e-8, max_iterations=20000)
     f2, z2, _, it2, res2, tol2 = ca.admm_contact(G, b, n, MU, f, z, rung, rtol=1e-8, max_iterations=20000)
     assert it > 10 and it2 <= 2
@@ -162,19 +162,8 @@ def test_a_warm_start_from_the_answer_converges_at_once():
 
 
 # --------------------------------------------------------------------------------- whole episodes
-def _scene(tiny_scene, segments, friction):
-    data = tiny_scene.model_dump(mode="json", exclude_none=True)
-    data["load"] = {"indenter": {"shape": "flat", "diameter_mm": 40.0}, "start_xy_mm": [0.0, 0.0], "start_gap_mm": 0.5,
-                    "friction_coefficient": friction, "segments": segments}
-    data["fidelity"]["solve"] = {"tier": "linear", "gravity": False}
-    return scene_from_dict(data)
-
-
-@pytest.fixture(scope="module")
-def body(tiny_mesh):
-    scene, _, mesh, _ = tiny_mesh
-    lame, rho, _ = qs.layer_materials(scene)
-    return qs.LinearBody(mesh, lame, rho, "P2P1", gravity=False)
+# the tiny sensor under a flat punch, and its linear body: as tests/test_quasistatic's
+from test_quasistatic import _scene, body  # noqa: E402,F401  (body is a pytest fixture)
 
 
 PRESS_HOLD = [{"kind": "press", "depth_mm": 0.7, "speed_mm_s": 7.0}, {"kind": "hold", "duration_s": 0.1}]
@@ -215,9 +204,7 @@ def test_a_slide_sticks_then_slips_by_coulomb(tiny_mesh, body):
     scene0, _, mesh, _ = tiny_mesh
     mu = 0.5
     segs = [{"kind": "press", "depth_mm": 0.7, "speed_mm_s": 7.0}, {"kind": "slide", "distance_mm": 8.0, "speed_mm_s": 20.0}]
-    data = _scene(scene0, segs, mu).model_dump(mode="json", exclude_none=True)
-    data["fidelity"]["solve"]["substeps"] = 4
-    scene = scene_from_dict(data)
+    scene = _scene(scene0, segs, friction=mu, substeps=4)
     ep = qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False, substeps=4, contact_solver="admm"))
     ratio = np.hypot(ep.contact_force_n[:, 0], ep.contact_force_n[:, 1]) / np.maximum(ep.normal_force_n, 1e-12)
     first = np.flatnonzero(ep.t_s > 0.1 + 1e-9)[0]
