@@ -52,8 +52,13 @@ import scipy.linalg as sla
 
 __all__ = ["DenseDelassus", "GroupedDelassus", "AdmmInfo", "project_cone", "de_saxce", "admm_contact"]
 
-RHO_RUNG = 10.0 ** 0.25
-MAX_LINEARISATIONS = 6  # re-linearisations of the gap per step (solve_step)  # the adaptive rho moves on this ladder: each rung is factorised once
+RHO_RUNG = 10.0 ** 0.25  # the adaptive rho moves on this ladder: each rung is factorised once
+MAX_LINEARISATIONS = 6  # re-linearisations of the gap per step (solve_step)
+# with second-order rod kinematics the loop is also the fixed point of q(f): more rounds allowed
+SECOND_ORDER_LINEARISATIONS = 12
+# ... and stops when q's last change moved at most this fraction of the total normal force (per rod):
+# the kinematics' own error against the nonlinear tier is about 10 %
+SECOND_ORDER_RTOL = 1e-2
 
 
 class _Delassus:
@@ -263,15 +268,46 @@ class StepLaw:
     touching: np.ndarray  # (m,) bool
     stick: np.ndarray  # (m,) bool
     f_unknowns: np.ndarray  # forces summed per unknown (per group when grouped)
+    f_extra: np.ndarray | None = None  # (m, 3) N second-order rod kinematics: the P-delta load on the points (not a contact force)
 
 
 @dataclass
 class WarmStart:
-    """The last solve's forces, cone multipliers and rho rung (a step starts from them)."""
+    """The last solve's forces, cone multipliers and rho rung (a step starts from them).
+
+    ``kinematics``: a :class:`fem.rod_kinematics.RodKinematics` for second-order rod kinematics (None:
+    first order). The steps then remember, per converged point state, the part of the points'
+    displacement that is not u_0 + E f (the rotation term q and the P-delta load's displacement),
+    keyed by the state's u: a step from that state (the next step, a half step, a force-control
+    trial) starts from where the points really were."""
 
     f: np.ndarray | None = None
     z: np.ndarray | None = None
     rung: int = 0
+    kinematics: object | None = None
+    hidden: dict = field(default_factory=dict)
+
+    HIDDEN_KEPT = 64  # states remembered (force control tries a few heights per step, halves nest 8 deep)
+
+    def hidden_at(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(h, P-delta load) remembered for the point state u, or None."""
+        return self.hidden.get(_state_key(u))
+
+    def remember(self, u: np.ndarray, hidden: np.ndarray, load: np.ndarray) -> None:
+        self.hidden[_state_key(u)] = (hidden, load)
+        while len(self.hidden) > self.HIDDEN_KEPT:
+            self.hidden.pop(next(iter(self.hidden)))
+
+
+def _state_key(u: np.ndarray) -> bytes:
+    import hashlib
+
+    return hashlib.blake2b(np.ascontiguousarray(u, dtype=float).tobytes(), digest_size=16).digest()
+
+
+def _unknowns(G: _Delassus, f: np.ndarray) -> np.ndarray:
+    """Point forces (m, 3) summed onto the operator's unknowns (points, or groups)."""
+    return G.group_sum(f) if isinstance(G, GroupedDelassus) else f
 
 
 def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, pose_old, state, friction: float, k: np.ndarray,
@@ -288,24 +324,48 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
     misplaces, k |g - g_lin| summed over the loaded points, is at most 10 rtol of the total normal
     force. ``warm`` is read and updated.
 
+    With ``warm.kinematics`` (:mod:`fem.rod_kinematics`) the points sit at X + u + h, u = u_0 + E f and
+    h = q(f) + E f_pd (the rods' second-order rotation terms and the P-delta load's displacement): h
+    is frozen over each linearisation and re-evaluated at its solution, mixed by Anderson's rule of
+    depth 1, and the loop also runs until h's last change moved at most SECOND_ORDER_RTOL of the
+    total normal force (summed per rod; at most SECOND_ORDER_LINEARISATIONS rounds). The returned u is u_0 + E f (the state's
+    u); h and f_pd are kept in ``warm`` per state and f_pd is returned in :class:`StepLaw`.
+
     Returns (u_points (m, 3), :class:`StepLaw`, :class:`AdmmInfo`).
     """
     from fem.indenters import gap as indenter_gap
     from fem.indenters import gap_normal_hessian, rigid_motion
 
-    drag = rigid_motion(pose_old, pose, X + state.u)
+    kin = warm.kinematics
+    if kin is None:
+        u_prev = state.u
+    else:
+        # second-order rod kinematics (fem.rod_kinematics): the points sit at X + u + h, h = q(f) + E f_pd
+        # the part of their displacement that is not u_0 + E f; h is frozen over a linearisation and
+        # re-evaluated at each solution (the re-linearisation loop is its fixed point)
+        seen = warm.hidden_at(state.u)
+        h_prev = _hidden(kin, G, np.zeros_like(X))[0] if seen is None else seen[0]
+        u_prev = state.u + h_prev
+        f_est = warm.f if warm.f is not None and warm.f.shape == X.shape else np.zeros_like(X)
+        hidden, load = _hidden(kin, G, f_est)
+        f_last = warm.f if warm.f is not None and warm.f.shape == X.shape else None
+        mix = None
+    drag = rigid_motion(pose_old, pose, X + u_prev)
     # first linearisation point: the guess, else every point carried along by the indenter (exact for
     # a sticking point, and for a flat face whatever the point does)
-    u_star = state.u + drag if guess_points is None else guess_points
+    if guess_points is None:
+        u_star = u_prev + drag
+    else:
+        u_star = guess_points if kin is None else guess_points + h_prev
     f, z, rung = warm.f, warm.z, warm.rung
     info = AdmmInfo()
     u = u_star
-    for lin in range(max_linearisations):
+    for lin in range(max_linearisations if kin is None else max(max_linearisations, SECOND_ORDER_LINEARISATIONS)):
         gap, n, _ = gap_normal_hessian(shape, pose, X + u_star)
         P_old_t = state.f_t - np.einsum("ij,ij->i", state.f_t, n)[:, None] * n  # the last tangential force in today's plane
-        moved = state.u + drag
+        moved = u_prev + drag
         c = n * (gap - np.einsum("ij,ij->i", n, u_star))[:, None] - (moved - np.einsum("ij,ij->i", moved, n)[:, None] * n) - P_old_t * G.inv_k[:, None]
-        b = u0_points + c
+        b = (u0_points if kin is None else u0_points + hidden) + c
         info.linearisations += 1
         if np.all(np.einsum("ij,ij->i", b, n) >= 0.0):
             f = np.zeros_like(b)  # no point reaches the indenter unloaded: f = 0 solves the problem exactly
@@ -313,28 +373,62 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
             it, res, tol = 0, 0.0, 0.0
         else:
             f, z, rung, it, res, tol = admm_contact(G, b, n, friction, f, z, rung, rtol=rtol, f_scale=f_floor_n, max_iterations=max_iterations)
+        if kin is not None:
+            f_lin, f_last = (f_last if f_last is not None else np.zeros_like(f)), f
         info.iterations += it
         info.history.append((it, res))
         info.residual_n, info.tolerance_n = res, tol
         info.converged = info.converged and res <= tol
         u = u0_points + G.elastic(f)
         fn = np.einsum("ij,ij->i", f, n)
-        g_new = indenter_gap(shape, pose, X + u)
-        g_lin = gap + np.einsum("ij,ij->i", n, u - u_star)
+        if kin is None:
+            u_full, u_next, moved_h = u, u, 0.0
+        else:
+            # the linearisation's error at the h it froze (the gap's curvature), and h's change through
+            # the force it moves between the last two solutions, per rod (the fixed point's residual; k |dh|
+            # would bound it at the penalty's stiffness, 100 x the body's at the default penalty, and
+            # per point it would sit at the ADMM tolerance's noise)
+            u_full = u + hidden
+            moved_h = kin.resultant_change(f - f_lin)
+            h_of_f, load = _hidden(kin, G, f)
+            # Anderson mixing of depth 1 on the fixed point h = h(f(h)) (Walker & Ni 2011): the plain
+            # iteration contracts by only about 0.4 per round on the tiny scene's slide
+            r = h_of_f - hidden
+            step = h_of_f
+            if mix is not None:
+                dr, dg = r - mix[0], h_of_f - mix[1]
+                denom = float(np.vdot(dr, dr))
+                if denom > 0.0:
+                    step = h_of_f - (float(np.vdot(r, dr)) / denom) * dg
+            mix = (r, h_of_f)
+            hidden_true, hidden = h_of_f, step
+            u_next = u + hidden
+        g_lin = gap + np.einsum("ij,ij->i", n, u_full - u_star)
+        g_new = indenter_gap(shape, pose, X + u_full)
         loaded = (fn > 0) | (g_new < 0)
         info.gap_error_m = float(np.abs(g_new - g_lin)[loaded].max()) if loaded.any() else 0.0
-        u_star = u
+        u_star = u_next
         # the force the linearisation misplaces, summed over the loaded points, against the total
         # normal force: a per-rod total error bound (one point's share can be larger on a curved rim)
         misplaced = float((np.abs(g_new - g_lin) / G.inv_k)[loaded].sum()) if loaded.any() else 0.0
-        if misplaced <= max(10.0 * rtol * float(np.abs(fn).sum()), f_floor_n):
+        if misplaced <= max(10.0 * rtol * float(np.abs(fn).sum()), f_floor_n) and moved_h <= max(SECOND_ORDER_RTOL * float(np.abs(fn).sum()), f_floor_n):
             break
     else:
         info.converged = info.linearised = False
+    extra = None
+    if kin is not None:
+        warm.remember(u, hidden_true, load)
+        extra = load
     warm.f, warm.z, warm.rung = f, z, rung
     fn = np.einsum("ij,ij->i", f, n)
     f_t = f - fn[:, None] * n
     touching = fn > 0
     stick = touching & (np.linalg.norm(f_t, axis=1) < friction * fn * (1.0 - 1e-6))
-    return u, StepLaw(f, fn, f_t, touching, stick, f), info
+    return u, StepLaw(f, fn, f_t, touching, stick, f, extra), info
+
+
+def _hidden(kin, G: _Delassus, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points' displacement beyond u_0 + E f at point forces f (m, 3): q(f) + E f_pd, and f_pd (m, 3) N."""
+    q, load = kin.q_and_load(f, _unknowns(G, f))
+    return (q + G.elastic(load) if kin.pdelta else q), load
 

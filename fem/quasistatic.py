@@ -19,6 +19,10 @@ base bottom clamped, optional gravity) and the contact on condensed compliance
   The patch's rigid motion and its force spread by area are the approximation: its error against
   ``linear`` is what ``mlsim accuracy`` reports.
 
+With ``fidelity.solve.rod_kinematics = "second_order"`` (ADMM contact only) both tiers add the bent
+rods' second-order rotation terms to the contact kinematics and the displacement output, and the
+P-delta load of their axial contact force to the body (:mod:`fem.rod_kinematics`).
+
 Time: frames at the camera's rate; each frame interval is split into ``substeps`` solves (friction
 is path-dependent; an indenter sliding 200 mm/s moves 6.7 mm per 30 FPS frame). Per step the
 outputs are the per-tet centroid Cauchy stress, von Mises stress and strain energy density, vertex
@@ -39,7 +43,7 @@ import skfem
 from skfem import LinearForm
 from threadpoolctl import threadpool_limits
 
-from fem import condensed, elasticity, fields, trajectory
+from fem import condensed, elasticity, fields, rod_kinematics, trajectory
 from fem.indenters import IndenterShape, Pose, shape_from_scene
 from fem.indenters import gap as indenter_gap
 from fem.nonlinear import SolverError
@@ -79,6 +83,7 @@ class SolveSettings:
     small_strain_limit: float = 0.5  # refuse a step where a contact point moves more than this x rod height
     contact_solver: str = "admm"  # "admm" (fem.contact_admm) | "newton" (fem.condensed._newton_points)
     contact_max_iterations: int = 200  # ADMM iterations per linearisation
+    rod_kinematics: str = "first_order"  # "first_order" | "second_order" (fem.rod_kinematics; admm only)
 
     @classmethod
     def from_scene(cls, scene) -> "SolveSettings":
@@ -91,7 +96,19 @@ class SolveSettings:
         return cls(tier=f.tier, element=element, substeps=f.substeps, contact_band_m=f.contact_band_mm * 1e-3,
                    penalty_factor=f.penalty_factor, patches_per_tip=f.patches_per_tip, patches_per_side=f.patches_per_side,
                    gravity=f.gravity, small_strain_limit=f.small_strain_limit, contact_solver=f.contact_solver,
-                   contact_max_iterations=f.contact_max_iterations)
+                   contact_max_iterations=f.contact_max_iterations, rod_kinematics=f.rod_kinematics)
+
+
+def _rod_sections(scene, mesh, point_rod: np.ndarray, tip_z_m: float) -> "rod_kinematics.RodSections":
+    """The section observation (fem.rod_kinematics) of the rods that carry contact points."""
+    rods = np.unique(point_rod[point_rod >= 0])
+    return rod_kinematics.rod_sections(mesh.points, mesh.tets, mesh.tet_rod, rods, scene.sensor.base.thickness_mm * 1e-3, tip_z_m)
+
+
+def _on_dofs(O_vertices: sp.spmatrix, body: "LinearBody") -> sp.csr_matrix:
+    """An operator on vertex displacements (vertex-major 3 p + c) as one on the body's DOFs."""
+    O = O_vertices.tocoo()
+    return sp.csr_matrix((O.data, (O.row, body.vertex_dofs.ravel()[O.col])), shape=(O.shape[0], body.n_dofs))
 
 
 def layer_materials(scene):
@@ -183,17 +200,23 @@ class LinearBody:
         return np.stack([r[comp == c].sum(axis=0) for c in range(3)], axis=-1)
 
 
-def compliance(body: LinearBody, W: sp.spmatrix, block: int = 256, progress=None) -> np.ndarray:
-    """C = W^T K^-1 W (k, k) by blocks of ``block`` solves."""
+def compliance(body: LinearBody, W: sp.spmatrix, block: int = 256, progress=None, observe: sp.spmatrix | None = None):
+    """C = W^T K^-1 W (k, k) by blocks of ``block`` solves. With ``observe`` (o, n) sparse on the DOFs,
+    also its response O K^-1 W (o, k) from the same solves: returns (C, O K^-1 W)."""
     k = W.shape[1]
     C = np.empty((k, k))
     Wd = W.tocsc()
+    seen = None if observe is None else np.empty((observe.shape[0], k))
     for s in range(0, k, block):
         cols = Wd[:, s : s + block].toarray()
-        C[:, s : s + block] = Wd.T @ body.solve(cols)
+        Xs = body.solve(cols)
+        C[:, s : s + block] = Wd.T @ Xs
+        if seen is not None:
+            seen[:, s : s + block] = observe @ Xs
         if progress is not None:
             progress(min(s + block, k), k)
-    return 0.5 * (C + C.T)
+    C = 0.5 * (C + C.T)
+    return C if observe is None else (C, seen)
 
 
 @dataclass
@@ -475,6 +498,12 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     shape, tip_z, grid, solve_kw = setup.shape, setup.tip_z_m, setup.grid, setup.solve_kw()
     t0 = time.perf_counter()
     groups = None
+    if settings.rod_kinematics not in rod_kinematics.ROD_KINEMATICS:
+        raise ValueError(f'fidelity.solve.rod_kinematics = "{settings.rod_kinematics}": choose one of {", ".join(rod_kinematics.ROD_KINEMATICS)}')
+    second_order = settings.rod_kinematics == "second_order"
+    if second_order and settings.contact_solver != "admm":
+        raise ValueError('fidelity.solve.rod_kinematics = "second_order" needs fidelity.solve.contact_solver = "admm"')
+    kinematics = None
     if settings.tier == "reduced":
         # contact at the patches' points near the path, elasticity per patch (fem.condensed groups)
         keep = path_points(reduced.point_X, shape, load, grid, tip_z, settings.path_margin_m)
@@ -485,13 +514,27 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         u0 = reduced.point_u_gravity[used]
         timings.update({f"precompute_{k}": v for k, v in reduced.seconds.items()})
         timings["precompute"] = sum(reduced.seconds.values())
+        if second_order:
+            t_k = time.perf_counter()
+            sections = _rod_sections(scene, mesh, reduced.rod[used][groups], setup.tip_z_m)
+            A = np.asarray(sections.O @ reduced.displacement_response[:, cols], dtype=float)
+            kinematics = rod_kinematics.RodKinematics(sections, A, sections.O @ reduced.displacement_gravity.astype(float), X,
+                                                      reduced.rod[used][groups])
+            timings["precompute_rod_kinematics"] = time.perf_counter() - t_k
+            timings["precompute"] += timings["precompute_rod_kinematics"]
     else:
         faces = condensed.contact_faces(mesh, settings.contact_band_m)
         all_points = condensed.contact_points(mesh, body.skmesh, body.d, faces)
         keep = path_points(all_points.X, shape, load, grid, tip_z, settings.path_margin_m)
         points = all_points.subset(keep)
         X, area, rod = points.X, points.area_m2, points.rod
-        C = compliance(body, points.W)
+        if second_order:
+            sections = _rod_sections(scene, mesh, rod, setup.tip_z_m)
+            O_dofs = _on_dofs(sections.O, body)
+            C, seen = compliance(body, points.W, observe=O_dofs)
+            kinematics = rod_kinematics.RodKinematics(sections, seen, O_dofs @ body.x_gravity, X, rod)
+        else:
+            C = compliance(body, points.W)
         u0 = (points.W.T @ body.x_gravity).reshape(-1, 3)
         timings["precompute"] = time.perf_counter() - t0
     m = len(u0)  # unknowns: points (linear) or patches (reduced)
@@ -506,7 +549,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         delassus.solve(np.zeros((len(X), 3)), 0)  # the first factorisation belongs to the precompute
         timings["precompute_delassus"] = time.perf_counter() - t_d
         timings["precompute"] += timings["precompute_delassus"]
-        contact_kw = {"delassus": delassus, "warm": contact_admm.WarmStart(), "max_iterations": settings.contact_max_iterations}
+        contact_kw = {"delassus": delassus, "warm": contact_admm.WarmStart(kinematics=kinematics), "max_iterations": settings.contact_max_iterations}
     # force control finds the height by a secant on the total force to 1e-6 (condensed.solve_points_at_force):
     # the contact solves under it must be ten times tighter than that
     force_kw = contact_kw if settings.contact_solver != "admm" else {**contact_kw, "admm_rtol": 1e-7}
@@ -518,6 +561,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     steps = grid.step_times_s
     S = len(steps)
     forces = np.zeros((S, m, 3))
+    extras = np.zeros((S, m, 3)) if second_order else None  # the P-delta loads on the unknowns (fem.rod_kinematics)
     pose_arr = np.zeros((S, 4))
     target = np.full(S, np.nan)
     iters = np.zeros(S, dtype=np.int64)
@@ -581,6 +625,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             u_now = u
             pose_old = pose
             forces[s] = info["f"]
+            if extras is not None and law.f_extra is not None:
+                extras[s] = law.f_extra if groups is None else contact_kw["delassus"].group_sum(law.f_extra)
             normal_now = condensed.normal_force(law)
             pose_arr[s] = (*pose.position_m, pose.yaw_rad)
             iters[s] = n_it
@@ -591,12 +637,16 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     timings["contact_steps"] = time.perf_counter() - t_loop
     timings["rod_bending_ratio"] = worst_bend[0]
     timings["geometric_error_estimate"] = geometric_error_estimate(worst_bend[0])
-    if timings["geometric_error_estimate"] > GEOMETRIC_WARNING and log is not None:
+    if second_order:
+        # the estimate is of first-order kinematics; second order measured 7-11 % on the tiny slide (fem.rod_kinematics)
+        timings["geometric_error_estimate"] = float("nan")
+    elif timings["geometric_error_estimate"] > GEOMETRIC_WARNING and log is not None:
         log(f"warning: a rod's contact points move sideways {worst_bend[0]:.1%} of the rod height (step {worst_bend[1]}): the {settings.tier} "
             f"tier's small-strain kinematics miss the rods' tilt and drop, and its per-rod contact forces are estimated "
             f"{timings['geometric_error_estimate']:.0%} off the nonlinear tier's (fem.quasistatic.geometric_error_estimate: "
             "4 x the bend, measured on a sphere dragging rods, up to the 30-70 % seen at bends over 6 %); "
-            'use fidelity.solve.tier = "nonlinear" for this load, or a smaller one')
+            'use fidelity.solve.rod_kinematics = "second_order" (about 10 % on a sphere dragging rods 10-15 deg), '
+            'fidelity.solve.tier = "nonlinear" for this load, or a smaller one')
     timings["contact_step_ms"] = step_ms.tolist()  # each step's contact solve (benchmarks take medians by kind of frame)
     if settings.contact_solver == "admm":
         timings["contact_worst_residual_n"] = worst["residual_n"]
@@ -607,25 +657,30 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 f"iterations with a force residual of {worst['residual_n']:.3g} N ({worst['ratio']:.3g} x its tolerance): "
                 "raise fidelity.solve.contact_max_iterations for a tighter answer")
         if worst["unlinearised"] and log is not None:
+            bound = contact_admm.SECOND_ORDER_LINEARISATIONS if second_order else contact_admm.MAX_LINEARISATIONS
             log(f"warning: in steps {worst['unlinearised']} the indenter's gap curves more than "
-                f"{contact_admm.MAX_LINEARISATIONS} linearisations follow (the largest gap error is reported per step); "
+                f"{bound} linearisations follow (the largest gap error is reported per step); "
                 "use more fidelity.solve.substeps")
 
     t0 = time.perf_counter()
     T = mesh.n_tets
+    loads = forces if extras is None else forces + extras  # the body carries the P-delta load too
     if settings.tier == "reduced":
-        Fp = forces.reshape(S, 3 * m).T.astype(np.float32)  # (3 M_used, S): only the patches near the path
+        Fp = loads.reshape(S, 3 * m).T.astype(np.float32)  # (3 M_used, S): only the patches near the path
         stress = (reduced.stress_response[:, cols] @ Fp).T.reshape(S, 6, T) + reduced.stress_gravity.reshape(6, T)
         disp = ((reduced.displacement_response[:, cols] @ Fp).T + reduced.displacement_gravity).reshape(S, -1, 3)
         total = forces.sum(axis=1)
         reaction = -(total + reduced.weight_n)
     else:
-        F = body.f_gravity[:, None] + points.W @ forces.reshape(S, 3 * m).T  # (n, S)
+        F = body.f_gravity[:, None] + points.W @ loads.reshape(S, 3 * m).T  # (n, S)
         Xs = body.solve(F)
         stress = body.stress(Xs)
         disp = Xs[body.vertex_dofs.ravel()].T.reshape(S, -1, 3)
-        reaction = body.reaction(Xs, F)
+        # the clamp balances the contact forces and the weight: the P-delta load is a moment's stand-in
+        reaction = body.reaction(Xs, F) + (0.0 if extras is None else extras.sum(axis=1))
         total = forces.sum(axis=1)
+    if kinematics is not None:
+        disp = disp + np.stack([kinematics.vertex_correction(disp[s], mesh.points) for s in range(S)])
     timings["fields"] = time.perf_counter() - t0
     stress = stress.astype(np.float32)
     lam_t, mu_t = (body.lam, body.mu) if body is not None else (reduced.lam, reduced.mu)

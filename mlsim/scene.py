@@ -502,6 +502,10 @@ class SolveFidelity(_Model):
     # kept for comparison). Both solve the contact law the nonlinear tier solves.
     contact_solver: Literal["admm", "newton"] = "admm"
     contact_max_iterations: Annotated[int, Strict(), Field(ge=1, le=100000)] = 200  # per linearisation (admm)
+    # linear/reduced tiers (admm): "second_order" adds the bent rods' rigid-rotation terms (tip drop,
+    # tilted tip face) to the contact kinematics and the displacement output, and the P-delta load of
+    # their axial contact force (fem.rod_kinematics); "first_order": the plain small-strain body
+    rod_kinematics: Literal["first_order", "second_order"] = "first_order"
 
 
 class RenderFidelity(_Model):

@@ -1,0 +1,157 @@
+"""Second-order rod kinematics of the linear tiers (fem.rod_kinematics): the cantilever's tip drop,
+q's quadratic scaling, the P-delta load, the field's correction, the option's plumbing, and the tiny
+scene's slide against the nonlinear tier."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fem import condensed, contact_admm
+from fem import quasistatic as qs
+from fem import rod_kinematics as rk
+
+
+@pytest.fixture(scope="module")
+def body(tiny_mesh):
+    scene, _, mesh, _ = tiny_mesh
+    lame, rho, _ = qs.layer_materials(scene)
+    return qs.LinearBody(mesh, lame, rho, "P2P1", gravity=False)
+
+
+@pytest.fixture(scope="module")
+def rod0_tip(tiny_mesh, body):
+    """Rod 0's tip-face contact points, its sections and their kinematics (no gravity), and a lateral
+    tip load of 0.05 N along x spread by area."""
+    scene, _, mesh, _ = tiny_mesh
+    tip_z = qs.tip_height_m(mesh)
+    points = condensed.contact_points(mesh, body.skmesh, body.d, condensed.contact_faces(mesh, 2e-3))
+    points = points.subset(np.flatnonzero((points.rod == 0) & (points.X[:, 2] >= tip_z - 1e-9)))
+    sections = rk.rod_sections(mesh.points, mesh.tets, mesh.tet_rod, [0], scene.sensor.base.thickness_mm * 1e-3, tip_z)
+    O = qs._on_dofs(sections.O, body)
+    C, A = qs.compliance(body, points.W, observe=O)
+    kin = rk.RodKinematics(sections, A, np.zeros(A.shape[0]), points.X, points.rod)
+    f = np.zeros((points.m, 3))
+    f[:, 0] = 0.05 * points.area_m2 / points.area_m2.sum()
+    return kin, points, C, f
+
+
+def test_a_bent_rods_tip_drops_by_the_cantilevers_second_order_result(rod0_tip):
+    kin, _, _, f = rod0_tip
+    sec = kin.sections
+    theta, tip_h = kin.observe(f)
+    drop = rk.axis_drop(theta[:, :-1], sec.dz)[0]
+    # the tip centre (r = 0) drops by the axis' shortening alone
+    centre_q = rk.second_order_points(theta, sec, sec.centre[:1], np.array([0]))
+    np.testing.assert_allclose(centre_q[0], [0.0, 0.0, -drop], atol=1e-15)
+    # Euler-Bernoulli cantilever under a tip load: shortening (3/5) d^2 / L, with d the deflection the
+    # sections' rotations make (int theta dz). The rod is stubby (L / D = 1.8): 9 % of its tip
+    # deflection is shear, which turns no section, so against the whole deflection the drop is lower.
+    d_bend = float(np.sum(theta[0, :-1, 1] * sec.dz))
+    d_tip = float(tip_h[0, 0])
+    assert 0.3e-3 < d_bend < d_tip  # about 0.32 of 0.35 mm at 0.05 N
+    assert drop == pytest.approx(0.6 * d_bend**2 / sec.length_m, rel=0.10)
+    assert 0.7 < drop / (0.6 * d_tip**2 / sec.length_m) < 0.9
+    # the tip face tilts the way it is pushed: about +y for a push along +x
+    assert theta[0, -1, 1] > 0.5 * d_tip / sec.length_m
+
+
+def test_q_vanishes_without_force_and_is_quadratic_in_it(rod0_tip):
+    kin, points, _, f = rod0_tip
+    np.testing.assert_array_equal(kin.q(np.zeros_like(f)), 0.0)
+    q1, q2 = kin.q(f), kin.q(2.5 * f)
+    assert np.abs(q1).max() > 1e-6  # a few um at 0.05 N
+    np.testing.assert_allclose(q2, 6.25 * q1, rtol=1e-10, atol=1e-18)
+    # a lateral push drops every tip point (the axis' shortening outweighs the face's tilt at this load)
+    assert np.all(q1[:, 2] < 0)
+
+
+def test_the_pdelta_load_is_the_axial_force_times_the_tip_offset_over_the_height():
+    f = np.array([[0.0, 0.0, -0.3], [0.0, 0.0, -0.1], [0.0, 0.0, 0.2], [1.0, 0.0, -0.5]])
+    rod = np.array([0, 0, 1, -1])
+    tip_h = np.array([[1e-4, -2e-4], [3e-4, 0.0]])
+    load = rk.pdelta_load(f, tip_h, rod, 9e-3)
+    # rod 0: F_z = -0.4 N, load 0.4 x (1e-4, -2e-4) / 9e-3, shared 3:1; rod 1 is pulled (no load); base: none
+    total = 0.4 * np.array([1e-4, -2e-4]) / 9e-3
+    np.testing.assert_allclose(load[0, :2], 0.75 * total, rtol=1e-12)
+    np.testing.assert_allclose(load[1, :2], 0.25 * total, rtol=1e-12)
+    np.testing.assert_array_equal(load[2:], 0.0)
+    np.testing.assert_array_equal(load[:, 2], 0.0)
+
+
+def test_the_fields_correction_is_q_at_the_tip_face(tiny_mesh, body, rod0_tip):
+    _, _, mesh, _ = tiny_mesh
+    kin, points, _, f = rod0_tip
+    sec = kin.sections
+    x = body.solve(points.W @ f.ravel())
+    U = x[body.vertex_dofs.ravel()].reshape(-1, 3)
+    top = sec.vertices[0][mesh.points[sec.vertices[0], 2] >= qs.tip_height_m(mesh) - 1e-9]
+    at_vertices = rk.RodKinematics(sec, np.zeros((sec.O.shape[0], 3)), sec.O @ U.ravel(), mesh.points[top], np.zeros(len(top), int))
+    np.testing.assert_allclose(kin.vertex_correction(U, mesh.points)[top], at_vertices.q(np.zeros((1, 3))), rtol=1e-9, atol=1e-15)
+    # off the rod nothing moves
+    off = np.setdiff1d(np.arange(mesh.n_points), sec.vertices[0])
+    assert np.all(kin.vertex_correction(U, mesh.points)[off] == 0.0)
+
+
+def test_kinematics_that_add_nothing_leave_the_contact_step_as_it_was(tiny_mesh, body):
+    """A frictionless press (a unique answer) of a sphere on rod 0: with kinematics whose q and P-delta
+    vanish, solve_step's forces are the first-order ones (and first order is the scene's default)."""
+    scene, _, mesh, _ = tiny_mesh
+    from fem.indenters import Pose, shape_from_scene
+
+    assert qs.SolveSettings().rod_kinematics == "first_order" == scene.fidelity.solve.rod_kinematics
+    shape = shape_from_scene(scene.load.indenter)
+    tip_z = qs.tip_height_m(mesh)
+    points = condensed.contact_points(mesh, body.skmesh, body.d, condensed.contact_faces(mesh, 2e-3))
+    sections = rk.rod_sections(mesh.points, mesh.tets, mesh.tet_rod, [0], scene.sensor.base.thickness_mm * 1e-3, tip_z)
+    x, y = sections.centre[0, :2] + 1e-3  # the sphere's lowest point, 1.4 mm off rod 0's axis: it presses the tip face
+    points = points.subset(np.flatnonzero(np.hypot(points.X[:, 0] - x, points.X[:, 1] - y) < 4e-3))
+    C = qs.compliance(body, points.W)
+    k = np.full(points.m, 5e3)
+    G = contact_admm.DenseDelassus(C, k)
+    nothing = rk.RodKinematics(sections, np.zeros((sections.O.shape[0], 3 * points.m)), np.zeros(sections.O.shape[0]), points.X, points.rod)
+    pose_old, pose = Pose((x, y, tip_z + 1e-4), 0.0), Pose((x, y, tip_z - 3e-4), 0.0)
+    out = []
+    for kin in (None, nothing):
+        state = condensed.PointState.zero(points.m)
+        u, law, info = contact_admm.solve_step(G, np.zeros((points.m, 3)), points.X, shape, pose, pose_old, state, 0.0, k,
+                                               contact_admm.WarmStart(kinematics=kin), rtol=1e-8, max_iterations=20000, f_floor_n=1e-12,
+                                               max_linearisations=30)
+        assert info.linearised and info.converged
+        out.append(law.f)
+    assert -out[0][:, 2].sum() > 0.05  # the sphere presses rod 0's tip
+    # the same solution to the ADMM's accuracy (its stopping test bounds residuals, not the error: 1e-5 of the largest force)
+    np.testing.assert_allclose(out[1], out[0], rtol=0, atol=1e-4 * np.abs(out[0]).max())
+    np.testing.assert_allclose(out[1].sum(axis=0), out[0].sum(axis=0), rtol=0, atol=1e-5 * np.abs(out[0][:, 2]).sum())
+
+
+def test_the_scene_switch_is_validated(tiny_mesh):
+    scene, _, mesh, _ = tiny_mesh
+    with pytest.raises(Exception, match="rod_kinematics"):
+        scene.with_values({"fidelity.solve.rod_kinematics": "third_order"})
+    newton = scene.with_values({"fidelity.solve.rod_kinematics": "second_order", "fidelity.solve.contact_solver": "newton"})
+    assert qs.SolveSettings.from_scene(newton).rod_kinematics == "second_order"
+    with pytest.raises(ValueError, match='contact_solver = "admm"'):
+        qs.run_episode(newton, mesh)
+
+
+@pytest.mark.slow
+def test_second_order_brings_the_tiny_slide_to_the_nonlinear_tier(tiny_mesh):
+    """The tiny scene's sphere slide (rods tilt 10-15 deg): first order is 40-75 % off the nonlinear
+    tier, second order (rotation terms and P-delta) about 7-11 % (measured: base von Mises 7.4 %,
+    per-rod force 11 %, tip displacement 7.1 %; first order 43 %, 76 %, 40 %). The nonlinear tier
+    takes about 45 s."""
+    from mlsim.accuracy import relative_error, rod_measures
+
+    scene, _, mesh, _ = tiny_mesh
+    base = scene.sensor.base.thickness_mm * 1e-3
+    ref = rod_measures(qs.run_episode(scene.with_values({"fidelity.solve.tier": "nonlinear"}), mesh), base)
+    err = {}
+    for kinematics in ("first_order", "second_order"):
+        ep = qs.run_episode(scene.with_values({"fidelity.solve.rod_kinematics": kinematics}), mesh)
+        m = rod_measures(ep, base)
+        err[kinematics] = {k: relative_error(m[k], ref[k]) for k in m}
+    assert err["first_order"]["rod_contact_force"] > 0.5
+    assert err["second_order"]["rod_base_von_mises"] < 0.10
+    assert err["second_order"]["rod_contact_force"] < 0.15
+    assert err["second_order"]["tip_displacement"] < 0.10
