@@ -274,11 +274,8 @@ def _admm_points(u0, X, shape, pose, pose_old, state, friction, k_n, k_t, guess=
     lift = (lambda v: v) if groups is None else (lambda v: v[groups])
     u_pts, law, info = contact_admm.solve_step(delassus, lift(u0), X, shape, pose, pose_old, state, friction, k_n, warm,
                                                None if guess is None else lift(guess), rtol=admm_rtol, max_iterations=max_iterations)
-    if groups is None:
-        u = u_pts
-    else:
-        law.f_unknowns = delassus.group_sum(law.f)
-        u = u0 + (delassus.Cp @ law.f_unknowns.ravel()).reshape(-1, 3)
+    law.f_unknowns = delassus.group_sum(law.f)
+    u = u_pts if groups is None else u0 + delassus.elastic_unknowns(law.f)
     if not np.all(np.isfinite(u)):
         raise SolverError(f"{case}: NaN or Inf in the contact solution")
     return u, law, {"iterations": info.iterations, "kicks": 0, "residuals_m": [], "f": law.f_unknowns, "admm": info}

@@ -78,6 +78,14 @@ class _Delassus:
     def elastic(self, f: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def group_sum(self, f: np.ndarray) -> np.ndarray:
+        """Point forces (m, 3) summed onto the operator's unknowns: the points themselves here."""
+        return f
+
+    def elastic_unknowns(self, f: np.ndarray) -> np.ndarray:
+        """The unknowns' elastic displacement (E f, before lifting to the points)."""
+        return self.elastic(f)
+
     def apply(self, f: np.ndarray) -> np.ndarray:
         """G f (m, 3) m."""
         return self.elastic(f) + f * self.inv_k[:, None]
@@ -162,8 +170,11 @@ class GroupedDelassus(_Delassus):
     def group_sum(self, f: np.ndarray) -> np.ndarray:
         return self._sum @ f
 
+    def elastic_unknowns(self, f):
+        return (self.Cp @ self.group_sum(f).ravel()).reshape(-1, 3)
+
     def elastic(self, f):
-        return (self.Cp @ self.group_sum(f).ravel()).reshape(-1, 3)[self.groups]
+        return self.elastic_unknowns(f)[self.groups]
 
     def _factorise(self, rho):
         d_inv = 1.0 / (self.inv_k + rho)
@@ -225,12 +236,9 @@ def admm_contact(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float, f0: np.n
     """
     m = len(b)
     y = np.zeros((m, 3)) if f0 is None else project_cone(f0, n, mu)
-    if z0 is None:
-        sigma = G.apply(y) + b
-        z = -(sigma + de_saxce(sigma, n, mu))
-    else:
-        z = z0.copy()
-    s = de_saxce(G.apply(y) + b, n, mu) if z0 is not None else -z - (G.apply(y) + b)
+    sigma = G.apply(y) + b
+    s = de_saxce(sigma, n, mu)
+    z = -(sigma + s) if z0 is None else z0.copy()
     residual, tol = np.inf, 0.0
     for it in range(1, max_iterations + 1):
         rho = G.rho(rung)
@@ -304,10 +312,6 @@ def _state_key(u: np.ndarray) -> bytes:
 
     return hashlib.blake2b(np.ascontiguousarray(u, dtype=float).tobytes(), digest_size=16).digest()
 
-
-def _unknowns(G: _Delassus, f: np.ndarray) -> np.ndarray:
-    """Point forces (m, 3) summed onto the operator's unknowns (points, or groups)."""
-    return G.group_sum(f) if isinstance(G, GroupedDelassus) else f
 
 
 def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, pose_old, state, friction: float, k: np.ndarray,
@@ -429,6 +433,6 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
 
 def _hidden(kin, G: _Delassus, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The points' displacement beyond u_0 + E f at point forces f (m, 3): q(f) + E f_pd, and f_pd (m, 3) N."""
-    q, load = kin.q_and_load(f, _unknowns(G, f))
+    q, load = kin.q_and_load(f, G.group_sum(f))
     return (q + G.elastic(load) if kin.pdelta else q), load
 

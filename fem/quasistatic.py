@@ -626,7 +626,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             pose_old = pose
             forces[s] = info["f"]
             if extras is not None and law.f_extra is not None:
-                extras[s] = law.f_extra if groups is None else contact_kw["delassus"].group_sum(law.f_extra)
+                extras[s] = contact_kw["delassus"].group_sum(law.f_extra)
             normal_now = condensed.normal_force(law)
             pose_arr[s] = (*pose.position_m, pose.yaw_rad)
             iters[s] = n_it
