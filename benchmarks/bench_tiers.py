@@ -52,11 +52,15 @@ def _episode_costs(scene, mesh, repeats, **kw):
     fields = [1e3 * r["fields"] / ep.n_frames for r in runs]
     by_kind = {}
     if "contact_step_ms" in runs[0]:
-        # each step's own contact time plus its share of the (batched) field recovery; median over the
-        # steps of a kind in each run, then over the runs
+        # each step's own contact time plus its share of the (batched) field recovery (a step whose loads
+        # repeat the last step's, a hold, copies its fields: no share); median over the steps of a kind
+        # in each run, then over the runs
+        def fields_ms(r):
+            return np.asarray(r.get("fields_step_ms", np.full(ep.n_frames, 1e3 * r["fields"] / ep.n_frames)))
+
         for kind, idx in frame_kinds(ep).items():
             if len(idx):
-                per_run = [statistics.median(np.asarray(r["contact_step_ms"])[idx] + 1e3 * r["fields"] / ep.n_frames) for r in runs]
+                per_run = [statistics.median((np.asarray(r["contact_step_ms"]) + fields_ms(r))[idx]) for r in runs]
                 by_kind[kind] = {"steps": int(len(idx)), "ms_median": statistics.median(per_run), "frames_per_s": 1e3 / statistics.median(per_run),
                                  "iterations_max": int(ep.iterations[idx].max())}
     return ep, {

@@ -153,6 +153,46 @@ def test_the_iteration_bound_holds_and_the_residual_is_reported():
     assert np.all(np.isfinite(f))
 
 
+def test_the_compiled_iteration_is_the_numpy_one():
+    """One ADMM map of fem.admm_kernels against the module docstring's formulas in numpy (De Saxce's
+    correction, the cone projection, the multiplier update), dense and grouped."""
+    from fem import admm_kernels as ak
+
+    G, b, n = _random_problem(7)
+    n = _normals(len(b), np.random.default_rng(8))
+    rng = np.random.default_rng(9)
+    y, z, s = (1e-3 * rng.standard_normal(b.shape) for _ in range(3))
+    for rung in (-1, 2):
+        rho = G.rho(rung)
+        rhs = rho * y - z - b - s
+        x = G.solve(rhs, rung)
+        s_ref = ca.de_saxce(rhs - rho * x + b, n, MU)
+        y_ref = ca.project_cone(x + z / rho, n, MU)
+        z_ref = z + rho * (x - y_ref)
+        y2, z2, s2 = np.empty_like(y), np.empty_like(z), np.empty_like(s)
+        primal, dual, y_max = ak._step(*G.kernel_operator(rung), rho, b, n, MU, y, z, s, y2, z2, s2)
+        np.testing.assert_allclose(y2, y_ref, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(z2, z_ref, rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(s2, s_ref, rtol=1e-12, atol=1e-18)
+        assert primal == pytest.approx(np.abs(x - y_ref).max(), rel=1e-12)
+        assert dual == pytest.approx(np.abs(y_ref - y).max(), rel=1e-12)
+
+
+def test_anderson_acceleration_reaches_the_plain_answer_in_fewer_iterations(monkeypatch):
+    """The accelerated iterations solve the same problem: forces agree to the tolerance; on a coupled
+    problem they take fewer iterations than plain ADMM."""
+    G, b, n = _random_problem(2, m=60)
+    f_aa, _, _, it_aa, res_aa, tol_aa = ca.admm_contact(G, b, n, MU, rtol=1e-8, max_iterations=20000)
+    assert G.anderson_memory > 0
+    monkeypatch.setattr(G, "anderson_memory", 0)
+    f, _, _, it, res, tol = ca.admm_contact(G, b, n, MU, rtol=1e-8, max_iterations=20000)
+    assert res <= tol and res_aa <= tol_aa
+    assert it_aa < 0.8 * it
+    np.testing.assert_allclose(f_aa, f, atol=20 * tol)
+    pn = f_aa[:, 2]
+    assert np.all(np.linalg.norm(f_aa[:, :2], axis=1) <= MU * pn * (1 + 1e-12) + 1e-15)  # in the cones
+
+
 def test_a_warm_start_from_the_answer_converges_at_once():
     G, b, n = _random_problem(5)
     f, z, rung, it, res, tol = ca.admm_contact(G, b, n, MU, rtol=1e-8, max_iterations=20000)
@@ -186,15 +226,22 @@ def test_frictionless_press_admm_agrees_with_newton(tiny_mesh, body):
     np.testing.assert_allclose(admm.reaction_n + admm.contact_force_n, 0.0, atol=1e-8 * admm.normal_force_n.max())
 
 
-def test_hold_steps_start_from_their_answer(tiny_mesh, body):
-    """With friction, a hold repeats the last step's problem: from the warm start it converges in a
-    few iterations, where the press steps need tens."""
+def test_hold_steps_reuse_their_answer(tiny_mesh, body, monkeypatch):
+    """With friction, a hold repeats the last step's problem, whose answer is its own fixed point: the
+    hold steps reuse it (no iterations, the same fields). Solved anyway, from the warm start, they
+    converge in a few iterations to the same forces."""
     scene0, _, mesh, _ = tiny_mesh
-    ep = qs.run_episode(_scene(scene0, PRESS_HOLD, 0.5), mesh, body=body,
-                        settings=qs.SolveSettings(tier="linear", gravity=False, contact_solver="admm"))
+    scene = _scene(scene0, PRESS_HOLD, 0.5)
+    st = qs.SolveSettings(tier="linear", gravity=False, contact_solver="admm")
+    ep = qs.run_episode(scene, mesh, body=body, settings=st)
     hold = np.flatnonzero(np.diff(ep.pose[:, 2]) == 0) + 1
     assert len(hold) >= 3
-    assert np.all(ep.iterations[hold[1:]] <= 10) and ep.iterations[: hold[0]].max() > 20
+    assert np.all(ep.iterations[hold] == 0) and ep.iterations[: hold[0]].max() > 20
+    assert np.array_equal(ep.stress[hold], np.broadcast_to(ep.stress[hold[0] - 1], ep.stress[hold].shape))
+    monkeypatch.setattr(qs, "REUSE_HOLDS", False)
+    solved = qs.run_episode(scene, mesh, body=body, settings=st)
+    assert np.all(solved.iterations[hold[1:]] <= 10)
+    np.testing.assert_allclose(ep.rod_force_n, solved.rod_force_n, atol=1e-3 * np.abs(solved.rod_force_n).max())
 
 
 def test_a_slide_sticks_then_slips_by_coulomb(tiny_mesh, body):

@@ -87,6 +87,13 @@ def test_von_mises_and_energy_reference_values():
     assert fields.strain_energy_density(np.array([1e5, 1e5, 1e5, 0, 0, 0.0]), 1e20, mu) == pytest.approx(0.0, abs=1e-9)
 
 
+def test_von_mises_from_voigt_equals_the_tensor_form():
+    from fem.materials import linear_elastic
+
+    sigma = np.random.default_rng(3).standard_normal((6, 4, 5)) * 1e5
+    np.testing.assert_allclose(fields.von_mises(sigma), linear_elastic.von_mises(fields.voigt_to_tensor(sigma)), rtol=1e-12)
+
+
 # ---------------------------------------------------------------------------------- trajectory
 def _load_scene(segments, indenter=None):
     return scene_from_dict({
