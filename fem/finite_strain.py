@@ -22,8 +22,10 @@ density W = mu/2 (I1 - 3 - 2 ln J) + p^2 / (2 lambda) (the compressible neo-Hook
 pressure, p = lambda ln J: non-negative, and finite as lambda -> infinity, as the linear tiers'
 complementary form), vertex displacements, contact forces and the clamp's reaction.
 
-Cost: every Newton iteration assembles the tangent and factorises it (the frictional tangent is
-not symmetric: MKL PARDISO's general LU, else SuperLU). This is the reference tier, not the fast one.
+Cost: every Newton iteration assembles the tangent (the frictional tangent is not symmetric). Its
+direction comes from GMRES preconditioned by the last factorised tangent, and the tangent is factorised
+anew (MKL PARDISO's general LU, else SuperLU) only when that misses (``tangent_factorisations`` and
+``preconditioned_directions`` in the timings). This is the reference tier, not the fast one.
 """
 
 from __future__ import annotations
@@ -42,26 +44,11 @@ from fem.nonlinear import SolverError, residual_and_tangent
 
 __all__ = ["run_nonlinear_episode", "centroid_fields"]
 
-
-def _sparse_solve(A: sp.spmatrix, b: np.ndarray) -> np.ndarray:
-    """x with A x = b for a general (non-symmetric) sparse A: PARDISO if present, else SuperLU."""
-    try:
-        import pypardiso
-    except ImportError:  # pragma: no cover - non-x86 machines
-        import scipy.sparse.linalg as spla
-
-        return spla.spsolve(A.tocsc(), b)
-    global _PARDISO
-    if _PARDISO is None:  # creating one looks MKL up on disk (0.4 s): keep it
-        _PARDISO = pypardiso.PyPardisoSolver(mtype=11)
-        _PARDISO.set_iparm(11, 1)  # scaling and matching: the saddle point has a zero-ish pressure block
-        _PARDISO.set_iparm(13, 1)
-    x = _PARDISO.solve(A.tocsr(), b)
-    _PARDISO.free_memory(everything=True)
-    return x
-
-
-_PARDISO = None
+# Newton directions by GMRES on the tangent, preconditioned by an earlier factorised tangent: to this
+# relative residual (an inexact Newton step whose error is far below the Newton tolerance's scale) in at
+# most this many iterations, else the tangent is factorised
+INNER_RTOL = 1e-4
+INNER_ITERATIONS = 10
 
 
 def centroid_fields(d, x: np.ndarray, lam: np.ndarray, mu: np.ndarray):
@@ -100,10 +87,32 @@ class _Problem:
         self.free = body.free
         self.f_ext = body.f_gravity
         self.iterations = 0
+        self._pre = None  # the last factorised tangent: the preconditioner of the next directions
+        self.factorisations = 0
+        self.inner_solves = 0
         m = points.m
         blocks = np.arange(3 * m).reshape(m, 3)
         self._rows = np.repeat(blocks, 3, axis=1).ravel()
         self._cols = np.tile(blocks, (1, 3)).ravel()
+
+    def _direction(self, A: sp.csr_matrix, rhs: np.ndarray) -> np.ndarray:
+        """A^-1 rhs for the Newton direction. GMRES preconditioned by the last factorised tangent (of an
+        earlier iteration or step) first: the tangent changes little between them, so a few products
+        replace a factorisation; only when GMRES misses INNER_RTOL in INNER_ITERATIONS is the
+        tangent factorised anew (and kept as the next preconditioner)."""
+        import scipy.sparse.linalg as spla
+
+        from fem.linsolve import factorise
+
+        if self._pre is not None and self._pre.n == A.shape[0]:
+            M = spla.LinearOperator(A.shape, matvec=self._pre.solve, dtype=float)
+            x, info = spla.gmres(A, rhs, M=M, rtol=INNER_RTOL, atol=0.0, restart=INNER_ITERATIONS, maxiter=1)
+            if info == 0 and np.all(np.isfinite(x)):
+                self.inner_solves += 1
+                return x
+        self._pre = factorise(A, definite=False, symmetric=False)
+        self.factorisations += 1
+        return self._pre.solve(rhs)
 
     def point_u(self, x):
         return (self.WT @ x).reshape(-1, 3)
@@ -135,7 +144,7 @@ class _Problem:
             if norm <= self.rtol * scale:
                 return x, law, it
             dx = np.zeros_like(x)
-            dx[free] = _sparse_solve(A[free][:, free], -R[free])
+            dx[free] = self._direction(A[free][:, free], -R[free])
             if not np.all(np.isfinite(dx)):
                 raise SolverError(f"{case}: the nonlinear contact tangent is singular (iteration {it})")
             du_c = np.linalg.norm(self.point_u(dx), axis=1).max()
@@ -289,6 +298,8 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
         reaction[s] = [unbalanced[comp_fixed == c].sum() for c in range(3)]
         bar(s + 1)
     timings["contact_steps"] = time.perf_counter() - t_loop
+    timings["tangent_factorisations"] = problem.factorisations
+    timings["preconditioned_directions"] = problem.inner_solves
     timings["fields"] = 0.0
     timings["per_frame_ms"] = 1e3 * timings["contact_steps"] / grid.n_frames
     vm = fields.von_mises(np.moveaxis(stress, 1, 0)).astype(np.float32)

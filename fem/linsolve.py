@@ -38,9 +38,11 @@ def available_backends() -> tuple[str, ...]:
 
 
 class Factorised:
-    """A factorised symmetric matrix A (n, n). ``solve(B)``: B (n,) or (n, k) -> A^-1 B, same shape."""
+    """A factorised sparse matrix A (n, n), symmetric unless ``symmetric=False`` (then PARDISO's general
+    LU with scaling and matching, mtype 11, or SuperLU's default). ``solve(B)``: B (n,) or (n, k) ->
+    A^-1 B, same shape."""
 
-    def __init__(self, A: sp.spmatrix, definite: bool, backend: str = "auto"):
+    def __init__(self, A: sp.spmatrix, definite: bool, backend: str = "auto", symmetric: bool = True):
         if backend == "auto":
             backend = available_backends()[0]
         if backend not in ("pardiso", "superlu"):
@@ -49,10 +51,12 @@ class Factorised:
         self.n = A.shape[0]
         self._A = A.tocsr()
         if backend == "pardiso":
-            self._solve = _pardiso_factor(self._A, definite)
-        else:
+            self._solve = _pardiso_factor(self._A, definite, symmetric)
+        elif symmetric:
             lu = spla.splu(self._A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
             self._solve = lu.solve
+        else:
+            self._solve = spla.splu(self._A.tocsc()).solve
         self._checked = False
 
     def solve(self, B: np.ndarray) -> np.ndarray:
@@ -75,27 +79,40 @@ class Factorised:
         return X
 
 
-def factorise(A: sp.spmatrix, definite: bool, backend: str = "auto") -> Factorised:
-    """Factorise the symmetric matrix A (SPD when ``definite``, else symmetric indefinite)."""
-    return Factorised(A, definite, backend)
+def factorise(A: sp.spmatrix, definite: bool, backend: str = "auto", symmetric: bool = True) -> Factorised:
+    """Factorise the matrix A: symmetric (SPD when ``definite``, else symmetric indefinite), or general
+    with ``symmetric=False``."""
+    return Factorised(A, definite, backend, symmetric)
 
 
-def _pardiso_factor(A: sp.csr_matrix, definite: bool):
-    import pypardiso
+_LIBRARY = None
 
-    mtype = 2 if definite else -2
-    lib = pypardiso.PyPardisoSolver(mtype=mtype)  # loads mkl_rt and declares the argument types
-    upper = sp.triu(A, format="csr")
+
+def _pardiso_library():
+    """pypardiso's binding of MKL's pardiso (kept: creating a PyPardisoSolver searches the disk for
+    mkl_rt, 0.4 s, and the nonlinear tier factorises once per few Newton iterations)."""
+    global _LIBRARY
+    if _LIBRARY is None:
+        import pypardiso
+
+        _LIBRARY = pypardiso.PyPardisoSolver(mtype=11)  # loads mkl_rt and declares the argument types; mtype goes per call
+    return _LIBRARY
+
+
+def _pardiso_factor(A: sp.csr_matrix, definite: bool, symmetric: bool = True):
+    mtype = (2 if definite else -2) if symmetric else 11
+    lib = _pardiso_library()
+    upper = sp.triu(A, format="csr") if symmetric else A.tocsr(copy=True)  # a general matrix: all of it
     upper.sort_indices()
     data = np.ascontiguousarray(upper.data, dtype=np.float64)
     ia = upper.indptr.astype(np.int32) + 1
     ja = upper.indices.astype(np.int32) + 1
     iparm = np.zeros(64, dtype=np.int32)
     # 1-based iparm numbers as in MKL's documentation
-    for k, v in {1: 1, 2: 2, 8: 0, 10: 13 if definite else 8, 21: 1, 18: -1}.items():
+    for k, v in {1: 1, 2: 2, 8: 0, 10: 13 if definite or not symmetric else 8, 21: 1, 18: -1}.items():
         iparm[k - 1] = v
     if not definite:
-        iparm[10], iparm[12] = 1, 1  # symmetric scaling, weighted matching
+        iparm[10], iparm[12] = 1, 1  # (symmetric) scaling, weighted matching
     pt = np.zeros(64, dtype=np.int64)
     perm = np.zeros(0, dtype=np.int32)
     i32 = ctypes.POINTER(ctypes.c_int32)

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import skfem
 
@@ -41,6 +42,25 @@ def test_factorised_solve_matches_spsolve(backend, element):
     ref = spla.spsolve(Kff.tocsc(), B)
     np.testing.assert_allclose(X, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
     np.testing.assert_allclose(f.solve(B[:, 1]), ref[:, 1], rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("backend", available_backends())
+def test_factorised_general_matrix_matches_spsolve(backend):
+    """A non-symmetric matrix (the frictional tangent's kind: P2P1 stiffness plus a non-symmetric
+    sparse coupling) through the general LU (symmetric=False)."""
+    d = _cube("P2P1")
+    K = assemble(d, LAM, MU)
+    fixed = np.flatnonzero(d.u.doflocs[2][: d.n_u] < 1e-9)
+    free = np.setdiff1d(np.arange(d.n_dofs), fixed)
+    rng = np.random.default_rng(1)
+    n = len(free)
+    coupling = sp.random(n, n, density=5.0 / n, random_state=2, format="csr") * (0.1 * abs(K).max())
+    A = (K[free][:, free] + coupling).tocsr()
+    assert abs(A - A.T).max() > 1e-3 * abs(A).max()  # not symmetric
+    B = rng.normal(size=(n, 2))
+    X = factorise(A, definite=False, backend=backend, symmetric=False).solve(B)
+    ref = spla.spsolve(A.tocsc(), B)
+    np.testing.assert_allclose(X, ref, rtol=1e-8, atol=1e-8 * np.abs(ref).max())
 
 
 @pytest.mark.parametrize("backend", available_backends())
