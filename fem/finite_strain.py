@@ -45,8 +45,9 @@ from fem.nonlinear import SolverError, residual_and_tangent
 __all__ = ["run_nonlinear_episode", "centroid_fields"]
 
 # Newton directions by GMRES on the tangent, preconditioned by an earlier factorised tangent: to this
-# relative residual (an inexact Newton step whose error is far below the Newton tolerance's scale) in at
-# most this many iterations, else the tangent is factorised
+# relative residual (an inexact Newton step with forcing term 1e-4: the outer iteration keeps converging,
+# its own tolerance is checked on the true residual) in at most this many iterations, else the tangent
+# is factorised (tiny scene: 30 iterations saved no more factorisations than 10)
 INNER_RTOL = 1e-4
 INNER_ITERATIONS = 10
 

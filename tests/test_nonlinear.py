@@ -67,8 +67,8 @@ def test_tangent_is_the_derivative_of_the_residual(rod):
 
 
 def test_vectorised_tangent_equals_scikit_fem_form_assembly(rod):
-    """fem.nonlinear.tangent_uu (two batched products) against scikit-fem assembling the same weak
-    form pair by pair, at a strained state with pressure."""
+    """fem.nonlinear.tangent_uu (two batched products) and residual_u (one) against scikit-fem
+    assembling the same weak forms pair by pair, at a strained state with pressure."""
     from skfem.helpers import det, inv
 
     from fem.elasticity import _per_qp
@@ -86,6 +86,12 @@ def test_vectorised_tangent_equals_scikit_fem_form_assembly(rod):
     ours = tangent_uu(d.u, mu_q, p_q, d.pressure_scale, np.asarray(Finv))
     ref = skfem.asm(_tangent_uu, d.u, F=F, J=det(F), Finv=Finv, p=p_q, mu=mu_q, s=d.pressure_scale)
     assert abs(ours - ref).max() <= 1e-13 * abs(ref).max()
+    # the residual likewise: one batched product against the form assembled per vector function
+    from fem.nonlinear import _residual_u, residual_u
+
+    r = residual_u(d.u, mu_q, p_q, d.pressure_scale, np.asarray(F), np.asarray(Finv))
+    r_ref = skfem.asm(_residual_u, d.u, F=F, J=det(F), Finv=Finv, p=p_q, mu=mu_q, s=d.pressure_scale)
+    np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-13 * np.abs(r_ref).max())
 
 
 def test_small_load_agrees_with_the_linear_tier(rod):
