@@ -290,7 +290,7 @@ def admm_contact(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float, f0: np.n
     # residual balancing (Boyd et al. 2011, sec. 3.4.1, every 5 iterations, ratio 3 rather than Boyd's
     # 10: 18 % fewer iterations on the default demo's steps) asks for another rung; z is in metres and
     # stays as it is when rho changes
-    pending = 0  # consecutive requests for a rung not factorised yet
+    pending = 0  # consecutive requests (signed: up > 0) for a rung not factorised yet
     memory = G.anderson_memory
     rejections = np.zeros(1, dtype=np.int64)
     while True:
@@ -305,8 +305,9 @@ def admm_contact(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float, f0: np.n
         step = 1 if status == admm_kernels.RUNG_UP else -1
         if abs(rung + step) > admm_kernels.MAX_RUNG:
             continue
-        pending = pending + 1 if not G.factorised(rung + step) else NEW_RUNG_AFTER
-        if pending >= NEW_RUNG_AFTER:
+        # count consecutive requests in one direction (a request the other way starts again)
+        pending = (pending + step if pending * step >= 0 else step) if not G.factorised(rung + step) else step * NEW_RUNG_AFTER
+        if abs(pending) >= NEW_RUNG_AFTER:
             rung, pending = rung + step, 0
 
 

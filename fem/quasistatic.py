@@ -49,8 +49,7 @@ from fem.indenters import gap as indenter_gap
 from fem.nonlinear import SolverError
 
 __all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "ContactSetup", "tip_height_m", "build_reduced", "run_episode",
-           "layer_materials", "bending_ratio", "geometric_error_estimate",
-           "patch_error_estimate"]
+           "layer_materials", "bending_ratio", "geometric_error_estimate", "patch_error_estimate"]
 
 GRAVITY_M_S2 = 9.80665
 # The contact Newton (fem.condensed._newton_points): its trust region in edge lengths, and the
@@ -698,7 +697,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         stress = body.stress(Xs)
         disp = Xs[body.vertex_dofs.ravel()].T.reshape(U, -1, 3)
         # the clamp balances the contact forces and the weight: the P-delta load is a moment's stand-in
-        reaction = (body.reaction(Xs, F))[frame_of] + (0.0 if extras is None else extras.sum(axis=1))
+        reaction = body.reaction(Xs, F)[frame_of] + (0.0 if extras is None else extras.sum(axis=1))
         total = forces.sum(axis=1)
     if kinematics is not None:
         disp = disp + np.stack([kinematics.vertex_correction(disp[i], mesh.points) for i in range(U)])
