@@ -9,8 +9,9 @@ Python, :class:`fem.contact_admm._Delassus`). The arithmetic is that of the nump
 (:func:`fem.contact_admm.project_cone`, :func:`fem.contact_admm.de_saxce`) in the same order, so the
 two agree to rounding (tests/test_contact_admm.py).
 
-:func:`run_anderson` is the same loop with Anderson acceleration. Status codes returned by :func:`run`: CONVERGED, BOUND (max_iterations reached), RUNG_UP / RUNG_DOWN
-(the caller changes rho and calls again with the same state).
+:func:`run_anderson` is the same loop with Anderson acceleration. Status codes returned by both:
+CONVERGED, BOUND (max_iterations reached), RUNG_UP / RUNG_DOWN (the caller changes rho and calls
+again with the same state).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ BALANCE_RATIO = 3.0  # ... when one residual exceeds the other this many times
 MAX_RUNG = 24
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True)
 def _project_point(v0, v1, v2, n0, n1, n2, mu):
     vn = v0 * n0 + v1 * n1 + v2 * n2
     t0, t1, t2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
