@@ -26,10 +26,11 @@ cone from the quadratic,
 
 so one factorisation of G + rho I serves every iteration, every re-linearisation and every step of
 an episode (frames change b and the cones, never G). rho starts at sqrt(lambda_min lambda_max) of G
-and adapts by the residual-balancing rule on a ladder of powers of 10^(1/2) (each rung factorised once
-and kept). Warm starts from the last step make a hold step converge in its first iteration. The
-iterations run compiled (:mod:`fem.admm_kernels`); on the dense operator, whose iterations cost a
-product with a (3 m)^2 matrix, Anderson acceleration of the ADMM map [Zhang2020]_ takes 40 % fewer.
+and adapts by the residual-balancing rule on a ladder of powers of 10^(1/4) (each rung factorised once
+and kept; the dense operator is diagonalised once instead, so its rungs cost nothing). Warm starts
+from the last step make a hold step converge in its first iteration. The iterations run compiled
+(:mod:`fem.admm_kernels`); on the dense operator, whose iterations cost two products with a (3 m)^2
+matrix, Anderson acceleration of the ADMM map [Zhang2020]_ takes 40 % fewer.
 
 The work per step is bounded by design: at most ``max_iterations`` ADMM iterations per linearisation
 and ``max_linearisations`` re-linearisations (the gap of a curved indenter moves with the points);
@@ -52,15 +53,15 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg as sla
 
 from fem import admm_kernels
 
 __all__ = ["DenseDelassus", "GroupedDelassus", "AdmmInfo", "project_cone", "de_saxce", "admm_contact"]
 
-# the adaptive rho moves on this ladder, each rung factorised once: a half decade (a quarter before)
-# visits 7 rungs rather than 13 on the default demo's linear tier, for the same iterations
-RHO_RUNG = 10.0 ** 0.5
+# the adaptive rho moves on this ladder, each rung factorised once. A half decade visited 7 rungs rather
+# than 13 on the default demo's linear tier for the same iterations, but left force-controlled steps
+# (rtol 1e-7) at their bound on the screw scene, whose grip hold then glowed: a quarter decade it is
+RHO_RUNG = 10.0 ** 0.25
 # a rho rung that is not factorised yet is taken only when the residual balancing asks for it twice
 # in a row (each new rung of the 1095-unknown demo costs about 55 ms, 350 iterations' worth)
 NEW_RUNG_AFTER = 2
@@ -159,29 +160,32 @@ class DenseDelassus(_Delassus):
     def __init__(self, C: np.ndarray, k: np.ndarray):
         self.C = np.ascontiguousarray(C)
         self.inv_k = 1.0 / np.asarray(k, dtype=float)
+        # G = Q diag(lambda) Q^T once: every rho is then (G + rho I)^-1 = Q diag(1 / (lambda + rho)) Q^T,
+        # two products per iteration (0.30 ms at 3 m = 1095) and no factorisation per rung. An explicit
+        # inverse per rung takes one product (0.15 ms) but 55 ms to build: the default demo's linear tier
+        # visits 13 rungs in about 1300 iterations (eigh: 0.2 s, once, in the precompute)
+        G = self.C.copy()
+        G[np.diag_indices_from(G)] += np.repeat(self.inv_k, 3)
+        lam, Q = np.linalg.eigh(0.5 * (G + G.T))
+        if not lam.min() > 0:
+            raise np.linalg.LinAlgError(f"the Delassus operator is not positive definite (smallest eigenvalue {lam.min():.3g})")
+        self.eigenvalues, self.Q = lam, np.ascontiguousarray(Q)
         super().__init__()
+
+    def lambda_max(self, iterations: int = 30) -> float:
+        return float(self.eigenvalues.max())
 
     def elastic(self, f):
         return (self.C @ f.ravel()).reshape(-1, 3)
 
     def _factorise(self, rho):
-        # the explicit inverse: one product per iteration runs at matrix-vector speed, where the two
-        # triangular solves of a Cholesky factor take five times as long (measured at 3 m = 1095)
-        A = self.C.copy()
-        A[np.diag_indices_from(A)] += np.repeat(self.inv_k, 3) + rho
-        c, info = sla.lapack.dpotrf(A, lower=False)
-        if info != 0:
-            raise np.linalg.LinAlgError(f"the Delassus operator + rho I is not positive definite (dpotrf info {info})")
-        inv, info = sla.lapack.dpotri(c, lower=False)
-        if info != 0:
-            raise np.linalg.LinAlgError(f"the Delassus operator + rho I cannot be inverted (dpotri info {info})")
-        return np.triu(inv) + np.triu(inv, 1).T
+        return 1.0 / (self.eigenvalues + rho)
 
     def _solve(self, factor, r, rho):
-        return (factor @ r.ravel()).reshape(-1, 3)
+        return (self.Q @ (factor * (r.ravel() @ self.Q))).reshape(-1, 3)
 
     def kernel_operator(self, rung):
-        return admm_kernels.DENSE, self._factor(rung), _EMPTY_2D, _EMPTY_1D, _EMPTY_INT, 0
+        return admm_kernels.EIGEN, self.Q, _EMPTY_2D, self._factor(rung), _EMPTY_INT, 0
 
 
 class GroupedDelassus(_Delassus):
