@@ -63,7 +63,8 @@ __all__ = ["DenseDelassus", "GroupedDelassus", "AdmmInfo", "project_cone", "de_s
 # (rtol 1e-7) at their bound on the screw scene, whose grip hold then glowed: a quarter decade it is
 RHO_RUNG = 10.0 ** 0.25
 # a rho rung that is not factorised yet is taken only when the residual balancing asks for it twice
-# in a row (each new rung of the 1095-unknown demo costs about 55 ms, 350 iterations' worth)
+# in a row (a grouped operator's new rung costs a 3 M x 3 M solve, 3 ms on the demo; a dense one's
+# is free, its operator diagonalised once)
 NEW_RUNG_AFTER = 2
 # Anderson acceleration (fem.admm_kernels.run_anderson) for the dense operator: on the default demo
 # its 5 last differences cut the linear tier's iterations from 2447 to 1407 (max per step 351 -> 200).
