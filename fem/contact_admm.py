@@ -80,7 +80,7 @@ SECOND_ORDER_LINEARISATIONS = 12
 SECOND_ORDER_RTOL = 1e-2
 
 
-_EMPTY_1D, _EMPTY_2D, _EMPTY_INT = np.zeros(0), np.zeros((0, 0)), np.zeros(0, dtype=np.int64)
+_EMPTY_2D, _EMPTY_INT = np.zeros((0, 0)), np.zeros(0, dtype=np.int64)
 
 
 class _Delassus:

@@ -94,6 +94,12 @@ def _tangent_pp(dp, q, w):
     return -(w.s * w.s) * dp * q / w.lam
 
 
+def _scalar_gradients(basis) -> np.ndarray:
+    """(nb, 3, E, Q): the gradients of the scalar functions of a vector basis whose local function 3 i + a
+    is scalar function i along component a."""
+    return np.stack([np.asarray(basis.basis[3 * i][0].grad[0]) for i in range(basis.Nbfun // 3)])
+
+
 def tangent_uu(basis, mu_q: np.ndarray, p_q: np.ndarray, s: float, Finv: np.ndarray) -> sp.csr_matrix:
     """K_uu of :data:`_tangent_uu`, assembled without scikit-fem's per-pair loop (same matrix, tested).
 
@@ -106,7 +112,7 @@ def tangent_uu(basis, mu_q: np.ndarray, p_q: np.ndarray, s: float, Finv: np.ndar
     mu_q, p_q: (E, Q) Pa and scaled pressure; Finv: (3, 3, E, Q).
     """
     nb = basis.Nbfun // 3
-    G = np.stack([np.asarray(basis.basis[3 * i][0].grad[0]) for i in range(nb)])  # (nb, 3, E, Q): grad phi_i
+    G = _scalar_gradients(basis)  # (nb, 3, E, Q): grad phi_i
     g = np.einsum("kaeq,ikeq->eqia", Finv, G)  # (E, Q, nb, 3): F^-T grad phi_i
     dx = basis.dx  # (E, Q)
     E = dx.shape[0]
@@ -125,8 +131,7 @@ def residual_u(basis, mu_q: np.ndarray, p_q: np.ndarray, s: float, F: np.ndarray
     P = mu (F - F^-T) + s p F^-T, assembled as one batched product (scikit-fem evaluates the form once
     per vector function, 30 passes; the line search evaluates it often). mu_q, p_q: (E, Q); F, Finv:
     (3, 3, E, Q). Same vector as the form (tested)."""
-    nb = basis.Nbfun // 3
-    G = np.stack([np.asarray(basis.basis[3 * i][0].grad[0]) for i in range(nb)])  # (nb, 3, E, Q): grad phi_i
+    G = _scalar_gradients(basis)  # (nb, 3, E, Q): grad phi_i
     FinvT = Finv.transpose(1, 0, 2, 3)
     P = mu_q * (F - FinvT) + (s * p_q) * FinvT  # (3, 3, E, Q)
     local = np.einsum("akeq,ikeq,eq->eia", P, G, basis.dx)  # (E, nb, 3): local function 3 i + a
@@ -143,7 +148,6 @@ def _csr_pattern(element_dofs: np.ndarray, n: int):
     key = (element_dofs.shape, n, hash(element_dofs.tobytes()))
     if key not in _PATTERNS:
         dofs = element_dofs.T.astype(np.int64)  # (E, k)
-        E, k = dofs.shape
         flat = (dofs[:, :, None] * n + dofs[:, None, :]).reshape(-1)
         keys, slot = np.unique(flat, return_inverse=True)  # row-major: CSR order with sorted columns
         indptr = np.zeros(n + 1, dtype=np.int64)
@@ -171,7 +175,6 @@ def residual_and_tangent(d: Discretisation, x: np.ndarray, lam, mu, with_tangent
     lam_q, mu_q = _per_qp(lam, d.u), _per_qp(mu, d.u)
     p_q = np.asarray(d.p.interpolate(ph))
     kin = dict(F=F, J=J, Finv=Finv)
-    kw = dict(p=p_q, lam=lam_q, mu=mu_q, s=s, **kin)
     r = np.concatenate([residual_u(d.u, np.asarray(mu_q), p_q, s, np.asarray(F), np.asarray(Finv)),
                         skfem.asm(_residual_p, d.p, p=p_q, lam=lam_q, s=s, **kin)])
     if not with_tangent:
