@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 CONVERGED, BOUND, RUNG_UP, RUNG_DOWN = 0, 1, 2, 3
-EIGEN, GROUPED = 0, 1
+EIGEN, ROD_BLOCKS = 0, 1
 BALANCE_EVERY = 5  # residual balancing every 5 iterations
 BALANCE_RATIO = 3.0  # ... when one residual exceeds the other this many times
 MAX_RUNG = 24
@@ -43,38 +43,58 @@ def _project_point(v0, v1, v2, n0, n1, n2, mu):
 
 
 @njit(cache=True)
-def _solve(mode, inverse, K, d_inv, groups, n_groups, r):
-    """(G + rho I)^-1 r, r (m, 3): Q diag(d_inv) Q^T r for EIGEN (the dense operator: ``inverse`` = Q,
-    d_inv = 1 / (lambda + rho)); Woodbury on the groups for GROUPED
-    (:class:`fem.contact_admm.GroupedDelassus`: x = (r - L K L^T (r / D)) / D, K = (I + C_p diag)^-1 C_p)."""
+def _solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
+    """(G + rho I)^-1 r, r (m, 3). EIGEN (:class:`fem.contact_admm.DenseDelassus`): Q diag(d_inv) Q^T r,
+    ``inverse`` = Q, d_inv = 1 / (lambda + rho). ROD_BLOCKS (:class:`fem.contact_admm.RodBlockDelassus`,
+    the points rod by rod, ``rod`` (m,) their rod 0 .. n_rods - 1): each rod's block
+    Q_a diag(d_inv_a) Q_a^T (``inverse`` (1, sum (3 m_a)^2): the Q_a one after the other, row-major),
+    then Woodbury on the rods' resultants: x = v - Y K S^T v, v the block solve, S^T the sum per rod,
+    Y (3 m, 3) the block solves of S, K (3 R, 3 R)."""
     m = r.shape[0]
-    if mode == EIGEN:  # inverse = Q, d_inv = 1 / (lambda + rho): Q diag Q^T r, both products with Q
-        # (Q^T r as r^T Q: one matrix stays in cache, where Q and a copy of Q^T took 1.6 x as long)
+    if mode == EIGEN:  # both products with Q (Q^T r as r^T Q: one matrix stays in cache, where Q and a
+        # copy of Q^T took 1.6 x as long)
         return (inverse @ (d_inv * (r.reshape(3 * m) @ inverse))).reshape(m, 3)
-    rd = np.empty((m, 3))
-    summed = np.zeros(3 * n_groups)
-    for i in range(m):
-        g = groups[i]
-        for c in range(3):
-            rd[i, c] = r[i, c] * d_inv[i]
-            summed[3 * g + c] += rd[i, c]
+    flat = r.reshape(3 * m)
+    v = np.empty(3 * m)
+    summed = np.zeros(3 * n_rods)
+    Qs = inverse[0]
+    start = 0
+    offset = 0
+    while start < m:
+        a = rod[start]
+        end = start
+        while end < m and rod[end] == a:
+            end += 1
+        lo, hi = 3 * start, 3 * end
+        nb = hi - lo
+        Q = Qs[offset : offset + nb * nb].reshape(nb, nb)
+        v[lo:hi] = Q @ (d_inv[lo:hi] * (flat[lo:hi] @ Q))
+        for i in range(start, end):
+            for c in range(3):
+                summed[3 * a + c] += v[3 * i + c]
+        offset += nb * nb
+        start = end
     q = K @ summed
+    out = np.empty((m, 3))
     for i in range(m):
-        g = groups[i]
+        a = rod[i]
         for c in range(3):
-            rd[i, c] -= q[3 * g + c] * d_inv[i]
-    return rd
+            acc = v[3 * i + c]
+            for e in range(3):
+                acc -= Y[3 * i + c, e] * q[3 * a + e]
+            out[i, c] = acc
+    return out
 
 
 @njit(cache=True)
-def _step(mode, inverse, K, d_inv, groups, n_groups, rho, b, n, mu, y, z, s, y2, z2, s2):
+def _step(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, y2, z2, s2):
     """One ADMM map (y, z, s) -> (y2, z2, s2) at rho; returns (primal, dual, max |y2|) in N."""
     m = b.shape[0]
     rhs = np.empty((m, 3))
     for i in range(m):
         for c in range(3):
             rhs[i, c] = rho * y[i, c] - z[i, c] - b[i, c] - s[i, c]
-    x = _solve(mode, inverse, K, d_inv, groups, n_groups, rhs)
+    x = _solve(mode, inverse, K, Y, d_inv, rod, n_rods, rhs)
     primal = 0.0
     dual = 0.0
     y_max = 0.0
@@ -111,7 +131,7 @@ def _balance(it, primal, dual):
 
 
 @njit(cache=True)
-def run(mode, inverse, K, d_inv, groups, n_groups, rho, b, n, mu, y, z, s, it0, max_iterations, rtol, f_scale):
+def run(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, it0, max_iterations, rtol, f_scale):
     """ADMM iterations it0 + 1 .. max_iterations at one rho, in place on y (forces), z (multipliers)
     and s (De Saxce's correction), all (m, 3).
 
@@ -122,7 +142,7 @@ def run(mode, inverse, K, d_inv, groups, n_groups, rho, b, n, mu, y, z, s, it0, 
     it = it0
     while it < max_iterations:
         it += 1
-        primal, dual, y_max = _step(mode, inverse, K, d_inv, groups, n_groups, rho, b, n, mu, y, z, s, y2, z2, s2)
+        primal, dual, y_max = _step(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, y2, z2, s2)
         y[:], z[:], s[:] = y2, z2, s2
         tol = rtol * max(y_max, f_scale, 1e-300)
         if max(primal, dual) <= tol:
@@ -134,7 +154,7 @@ def run(mode, inverse, K, d_inv, groups, n_groups, rho, b, n, mu, y, z, s, it0, 
 
 
 @njit(cache=True)
-def run_anderson(mode, inverse, K, d_inv, groups, n_groups, rho, b, n, mu, y, z, s, it0, max_iterations, rtol, f_scale, memory, rejections,
+def run_anderson(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, it0, max_iterations, rtol, f_scale, memory, rejections,
                  max_rejections):
     """:func:`run` with Anderson acceleration (type II, ``memory`` last differences) of the ADMM map
     on v = (y, z / rho, s / rho), safeguarded: an extrapolated point whose own step is longer than
@@ -160,7 +180,7 @@ def run_anderson(mode, inverse, K, d_inv, groups, n_groups, rho, b, n, mu, y, z,
     it = it0
     while it < max_iterations:
         it += 1
-        primal, dual, y_max = _step(mode, inverse, K, d_inv, groups, n_groups, rho, b, n, mu, y, z, s, y2, z2, s2)
+        primal, dual, y_max = _step(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, y2, z2, s2)
         g_norm2 = 0.0
         s_change = 0.0  # an extrapolated s need not be De Saxce's of its x: converged only when it is
         for i in range(m):
@@ -233,8 +253,8 @@ def warm_up() -> None:
     if _warm:
         return
     one = np.ones((1, 3)) / math.sqrt(3.0)
-    for mode in (EIGEN, GROUPED):
-        args = (mode, np.eye(3), np.eye(3), np.ones(1), np.zeros(1, dtype=np.int64), 1, 1.0, -one, one, 0.5)
+    for mode, inverse, d_inv in ((EIGEN, np.eye(3), np.ones(3)), (ROD_BLOCKS, np.eye(3).reshape(1, 9), np.ones(3))):
+        args = (mode, inverse, np.eye(3), np.zeros((3, 3)), d_inv, np.zeros(1, dtype=np.int64), 1, 1.0, -one, one, 0.5)
         run(*args, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), 0, 1, 1e-4, 0.0)
         run_anderson(*args, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), 0, 3, 1e-4, 0.0, 2, np.zeros(1, dtype=np.int64), 10)
     _warm = True

@@ -181,7 +181,6 @@ class _Law:
     touching: np.ndarray
     stick: np.ndarray
     f_t: np.ndarray
-    f_unknowns: np.ndarray | None = None  # the forces summed per unknown (per group when grouped)
 
 
 SMOOTH_P = 8  # sharpness of the regularised return map (see _contact_law)
@@ -263,34 +262,26 @@ def solve_points(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, gue
     return u, law, info
 
 
-def _admm_points(u0, X, shape, pose, pose_old, state, friction, k_n, k_t, guess=None, delassus=None, warm=None, groups=None,
+def _admm_points(u0, X, shape, pose, pose_old, state, friction, k_n, k_t, guess=None, delassus=None, warm=None,
                  case: str = "contact step", max_iterations: int = 200, admm_rtol: float = 1e-4, **ignored):
-    """:func:`fem.contact_admm.solve_step` for the unknowns of :func:`_newton_points` (points, or
-    patches with ``groups``): same arguments and returns. The penalty is isotropic (k_t = k_n)."""
+    """:func:`fem.contact_admm.solve_step` with the arguments and returns of :func:`_newton_points`.
+    The penalty is isotropic (k_t = k_n)."""
     from fem import contact_admm
 
     if not np.allclose(k_t, k_n):
         raise ValueError("the ADMM contact solver needs one isotropic penalty per point (k_t = k_n)")
-    lift = (lambda v: v) if groups is None else (lambda v: v[groups])
-    u_pts, law, info = contact_admm.solve_step(delassus, lift(u0), X, shape, pose, pose_old, state, friction, k_n, warm,
-                                               None if guess is None else lift(guess), rtol=admm_rtol, max_iterations=max_iterations)
-    law.f_unknowns = delassus.group_sum(law.f)
-    u = u_pts if groups is None else u0 + delassus.elastic_unknowns(law.f)
+    u, law, info = contact_admm.solve_step(delassus, u0, X, shape, pose, pose_old, state, friction, k_n, warm, guess, rtol=admm_rtol,
+                                           max_iterations=max_iterations)
     if not np.all(np.isfinite(u)):
         raise SolverError(f"{case}: NaN or Inf in the contact solution")
-    return u, law, {"iterations": info.iterations, "kicks": 0, "residuals_m": [], "f": law.f_unknowns, "admm": info}
+    return u, law, {"iterations": info.iterations, "kicks": 0, "residuals_m": [], "f": law.f, "admm": info}
 
 
 def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: IndenterShape, pose: Pose, pose_old: Pose, state: PointState,
                  friction: float, k_n: np.ndarray, k_t: np.ndarray, guess: np.ndarray | None = None,
                  tol_m: float = 1e-12, rtol: float = 1e-8, max_iterations: int = 200, case: str = "contact step", smooth_m: float = 1e-7,
-                 max_step_m: float | None = None, groups: np.ndarray | None = None):
+                 max_step_m: float | None = None):
     """Solve u = u0 + C f(u) for the points' displacements u (m, 3) at indenter ``pose``.
-
-    With ``groups`` (m,) the unknowns are per group (patch) instead: u, u0 (M, 3), C (3 M, 3 M),
-    every point of group g moves with u[g], and the group's force is the sum of its points' (the
-    contact is evaluated at each point, the elasticity per patch: a patch straddling the edge of
-    an indenter carries the force of the points that touch).
 
     C: (3 m, 3 m) point compliance (m/N), point-major. u0: (m, 3) displacements without contact
     forces. state: the points' state at ``pose_old`` (the previous converged step). k_n, k_t: (m,)
@@ -302,24 +293,14 @@ def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: Indenter
     """
     m = len(u0)
     drag = rigid_motion(pose_old, pose, X + state.u)
-    if guess is not None:
-        u = guess.copy()
-    elif groups is None:
-        u = state.u.copy()
-    else:  # every point of a group moved with it: any member's displacement is the group's
-        u = np.zeros((m, 3))
-        u[groups] = state.u
+    u = (state.u if guess is None else guess).copy()
     if not np.all(np.isfinite(u0)):
         raise SolverError(f"{case}: the load gives NaN or Inf displacements")
-    at_points = (lambda v: v) if groups is None else (lambda v: v[groups])
-    to_unknowns = (lambda v: v) if groups is None else (lambda v: _group_sum(v, groups, m))
-
     def residual(u, predictor=False):
-        law = _contact_law(X, at_points(u), shape, pose, drag, state, friction, k_n, k_t, predictor, smooth_m)
-        law.f_unknowns = to_unknowns(law.f)
+        law = _contact_law(X, u, shape, pose, drag, state, friction, k_n, k_t, predictor, smooth_m)
         r = u - u0
         if law.touching.any():  # f is zero off contact: one product with the whole C beats copying its columns
-            r = r - (C @ law.f_unknowns.ravel()).reshape(m, 3)
+            r = r - (C @ law.f.ravel()).reshape(m, 3)
         return r, law
 
     r, law = residual(u, predictor=True)
@@ -382,7 +363,7 @@ def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: Indenter
             raise SolverError(f"{case}: NaN or Inf in the contact iteration {it}")
     if float(np.abs(r).max()) > max(tol_m, rtol * scale):
         raise SolverError(f"{case}: contact Newton did not converge in {max_iterations} iterations; residual {norms[-1]:.3e} m (start {norms[0]:.3e} m)")
-    return u, law, {"iterations": it, "residuals_m": norms, "kicks": kicks, "f": law.f_unknowns}
+    return u, law, {"iterations": it, "residuals_m": norms, "kicks": kicks, "f": law.f}
 
 
 def _block_diag_csr(blocks: np.ndarray) -> sp.csr_matrix:
@@ -391,13 +372,6 @@ def _block_diag_csr(blocks: np.ndarray) -> sp.csr_matrix:
     rows = np.repeat(np.arange(3 * k), 3)
     cols = (3 * np.arange(k)[:, None, None] + np.zeros((1, 3, 1), dtype=int) + np.arange(3)[None, None, :]).ravel()
     return sp.csr_matrix((blocks.ravel(), (rows, cols)), shape=(3 * k, 3 * k))
-
-
-def _group_sum(values: np.ndarray, groups: np.ndarray, n: int) -> np.ndarray:
-    """Sum of per-point values (m, ...) into their groups (n, ...)."""
-    out = np.zeros((n,) + values.shape[1:])
-    np.add.at(out, groups, values)
-    return out
 
 
 def solve_path(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case: str = "contact step", max_depth: int = 8,
@@ -436,8 +410,7 @@ def _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, ma
     kw.pop("guess", None)  # a starting guess for the whole move is not one for its halves
     mid = Pose(tuple(0.5 * (np.asarray(pose.position_m) + np.asarray(pose_old.position_m))), 0.5 * (pose.yaw_rad + pose_old.yaw_rad))
     u1, law1, i1 = solve_path(C, u0, X, shape, mid, pose_old, state, friction, k_n, k_t, case, max_depth - 1, max_penetration_m, max_jump_m, **kw)
-    groups = kw.get("groups")
-    state1 = PointState((u1 if groups is None else u1[groups]).copy(), law1.f_t.copy())
+    state1 = PointState(u1.copy(), law1.f_t.copy())
     u2, law2, i2 = solve_path(C, u0, X, shape, pose, mid, state1, friction, k_n, k_t, case, max_depth - 1, max_penetration_m, max_jump_m, **kw)
     info = {"iterations": i1["iterations"] + i2["iterations"], "cuts": 1 + i1["cuts"] + i2["cuts"], "residuals_m": i2["residuals_m"], "f": i2["f"]}
     if "admm" in i2:  # the worse half's convergence

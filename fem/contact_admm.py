@@ -2,8 +2,8 @@
 
 The linear tiers condense the body onto m contact points (:mod:`fem.condensed`): with f (m, 3) the
 forces on the body at the points (sensor frame), the points move by u = u_0 + E f, E the elastic
-compliance (``linear``: C = W^T K^-1 W; ``reduced``: the patch compliance, every point moving with
-its patch). The contact law is the penalty / Coulomb law of :mod:`fem.condensed` without its
+compliance (``linear``: C = W^T K^-1 W, dense; ``reduced``: each rod's block of C, the rods coupled
+through their resultants, :class:`RodBlockDelassus`). The contact law is the penalty / Coulomb law of :mod:`fem.condensed` without its
 smoothing: normal force f_n = k <-g>_+, tangential force by the return map with the same stiffness
 k (k_t = k_n: one isotropic penalty per point). With the indenter's gap linearised at positions u*,
 g(u) = g* + n . (u - u*), define each point's "velocity"
@@ -56,20 +56,20 @@ import numpy as np
 
 from fem import admm_kernels
 
-__all__ = ["DenseDelassus", "GroupedDelassus", "AdmmInfo", "project_cone", "de_saxce", "admm_contact"]
+__all__ = ["DenseDelassus", "RodBlockDelassus", "rod_resultant_coupling", "rod_block_compliance", "AdmmInfo", "project_cone", "de_saxce",
+           "admm_contact", "admm_on_touching_rods"]
 
 # the adaptive rho moves on this ladder, each rung factorised once. A half decade visited 7 rungs rather
 # than 13 on the default demo's linear tier for the same iterations, but left force-controlled steps
 # (rtol 1e-7) at their bound on the screw scene, whose grip hold then glowed: a quarter decade it is
 RHO_RUNG = 10.0 ** 0.25
 # a rho rung that is not factorised yet is taken only when the residual balancing asks for it twice
-# in a row (a grouped operator's new rung costs a 3 M x 3 M solve, 3 ms on the demo; a dense one's
-# is free, its operator diagonalised once)
+# in a row (a rod-block operator's new rung costs the block solves of its 3 resultant columns and a
+# 3 R x 3 R solve; a dense one's is free, its operator diagonalised once)
 NEW_RUNG_AFTER = 2
-# Anderson acceleration (fem.admm_kernels.run_anderson) for the dense operator: on the default demo
-# its 5 last differences cut the linear tier's iterations from 2447 to 1407 (max per step 351 -> 200).
-# The grouped operator's iterations are so cheap (19 us) that the acceleration's own work cost more
-# than the 36 % of iterations it saved, so it iterates plain.
+# Anderson acceleration (fem.admm_kernels.run_anderson) of both operators: on the default demo its 5
+# last differences cut the linear tier's iterations from 2447 to 1407 (max per step 351 -> 200), the
+# reduced tier's from 2634 to 1410 (383 -> 255).
 DENSE_ANDERSON_MEMORY = 5
 ANDERSON_MAX_REJECTIONS = 10  # per solve; then plain iterations
 MAX_LINEARISATIONS = 6  # re-linearisations of the gap per step (solve_step)
@@ -102,21 +102,12 @@ class _Delassus:
     def elastic(self, f: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def group_sum(self, f: np.ndarray) -> np.ndarray:
-        """Point forces (m, 3) summed onto the operator's unknowns: the points themselves here."""
-        return f
-
-    def elastic_unknowns(self, f: np.ndarray) -> np.ndarray:
-        """The unknowns' elastic displacement (E f, before lifting to the points)."""
-        return self.elastic(f)
-
     def apply(self, f: np.ndarray) -> np.ndarray:
         """G f (m, 3) m."""
         return self.elastic(f) + f * self.inv_k[:, None]
 
     def lambda_min(self) -> float:
-        # E is positive semi-definite: G's smallest eigenvalue is at least min 1/k (and close to it
-        # where E is rank deficient, as for patches)
+        # E is positive semi-definite: G's smallest eigenvalue is at least min 1/k
         return float(self.inv_k.min())
 
     def lambda_max(self, iterations: int = 30) -> float:
@@ -149,7 +140,7 @@ class _Delassus:
 
     def kernel_operator(self, rung: int) -> tuple:
         """The factor of rung in the form :func:`fem.admm_kernels.run` takes:
-        (mode, inverse, K, d_inv, groups, n_groups)."""
+        (mode, inverse, K, Y, d_inv, groups, n_groups)."""
         raise NotImplementedError  # pragma: no cover - abstract
 
 
@@ -186,57 +177,155 @@ class DenseDelassus(_Delassus):
         return (self.Q @ (factor * (r.ravel() @ self.Q))).reshape(-1, 3)
 
     def kernel_operator(self, rung):
-        return admm_kernels.EIGEN, self.Q, _EMPTY_2D, self._factor(rung), _EMPTY_INT, 0
+        return admm_kernels.EIGEN, self.Q, _EMPTY_2D, _EMPTY_2D, self._factor(rung), _EMPTY_INT, 0
 
 
-class GroupedDelassus(_Delassus):
-    """G = L C_p L^T + diag(1/k) for points that move with their groups (patches): C_p (3 M, 3 M) the
-    patch compliance, ``groups`` (m,) the patch of each point (L^T sums point forces into patches, L
-    lifts patch displacements to the points), k (m,) N/m.
+class RodBlockDelassus(_Delassus):
+    """G = blockdiag_a(C_aa) + S H S^T + diag(1/k) (x) I_3: each rod's point compliance C_aa exact, the
+    rods coupled through their resultants (S (3 m, 3 R) sums a rod's point forces, H (3 R, 3 R) the
+    rods' mean mutual compliance, zero on its diagonal blocks; :func:`rod_resultant_coupling`).
 
-    (G + rho I)^-1 by Woodbury's identity on the patches: with D = 1/k + rho per point and
-    q = C_p L^T x, (I + C_p diag(sum_p 1/D)) q = C_p L^T (r / D) and x = (r - L q) / D: one 3 M x 3 M
-    solve per rho, and per solve two passes over the points and one 3 M x 3 M product."""
+    Contact on one rod tip is a local problem: which points of the tip touch, and how the load spreads
+    over them, needs the tip's own point compliance. Other rods feel it through the base, smoothly, as
+    a resultant (the default demo's flat punch: per-rod force within 0.5 % of the full point compliance,
+    2.3 % with no coupling at all). The points must come rod by rod (``rod`` non-decreasing).
 
-    def __init__(self, C_patch: np.ndarray, groups: np.ndarray, k: np.ndarray):
-        import scipy.sparse as sp
+    (G + rho I)^-1 per rod block and Woodbury on the 3 R resultants: B_a = C_aa + diag(1/k_a) + rho I =
+    Q_a diag(lambda_a + rho) Q_a^T (diagonalised once: every rho is free), v = B^-1 r,
+    x = v - Y K S^T v with Y = B^-1 S and K = (I + H S^T Y)^-1 H (3 R x 3 R, per rho)."""
 
-        self.Cp = np.ascontiguousarray(C_patch)
-        self.groups = np.asarray(groups)
-        self.n_groups = self.Cp.shape[0] // 3
+    anderson_memory = DENSE_ANDERSON_MEMORY
+
+    def __init__(self, blocks: list, H: np.ndarray, rod: np.ndarray, k: np.ndarray):
+        rod = np.asarray(rod)
+        if np.any(np.diff(rod) < 0):
+            raise ValueError("RodBlockDelassus: the points must come rod by rod (sort them by rod)")
+        _, self.rod = np.unique(rod, return_inverse=True)
+        self.n_rods = int(self.rod.max()) + 1 if len(rod) else 0
+        sizes = np.bincount(self.rod, minlength=self.n_rods)
+        if [b.shape[0] for b in blocks] != list(3 * sizes):
+            raise ValueError("RodBlockDelassus: one (3 m_a, 3 m_a) block per rod, in the points' order")
+        self.blocks = [np.ascontiguousarray(b) for b in blocks]
+        self.H = np.ascontiguousarray(H)
         self.inv_k = 1.0 / np.asarray(k, dtype=float)
-        m = len(self.groups)
-        # L^T: the sum of the points' forces per group, as a sparse product (np.add.at is ten times slower)
-        self._sum = sp.csr_matrix((np.ones(m), (self.groups, np.arange(m))), shape=(self.n_groups, m))
-        self._groups_int = np.ascontiguousarray(self.groups, dtype=np.int64)
+        self._starts = np.r_[0, np.cumsum(sizes)]
+        eig, Qs = [], []
+        for a, B in enumerate(self.blocks):
+            lo, hi = self._starts[a], self._starts[a + 1]
+            B = 0.5 * (B + B.T)
+            B[np.diag_indices_from(B)] += np.repeat(self.inv_k[lo:hi], 3)
+            lam, Q = np.linalg.eigh(B)
+            if not lam.min() > 0:
+                raise np.linalg.LinAlgError(f"rod block {a} of the Delassus operator is not positive definite (smallest eigenvalue {lam.min():.3g})")
+            eig.append(lam)
+            Qs.append(Q)
+        self._set_blocks(eig, Qs)
+        self._restricted: dict[bytes, RodBlockDelassus] = {}
         super().__init__()
 
-    def group_sum(self, f: np.ndarray) -> np.ndarray:
-        return self._sum @ f
+    def _set_blocks(self, eig: list, Qs: list) -> None:
+        self._eig, self._Q = eig, Qs
+        self.eigenvalues = np.concatenate(eig) if eig else np.zeros(0)
+        self._Q_flat = np.ascontiguousarray(np.concatenate([Q.ravel() for Q in Qs]) if Qs else np.zeros(0))[None, :]
+        self._rod_int = np.ascontiguousarray(self.rod, dtype=np.int64)
 
-    def elastic_unknowns(self, f):
-        return (self.Cp @ self.group_sum(f).ravel()).reshape(-1, 3)
+    def restrict(self, rods: np.ndarray) -> "RodBlockDelassus":
+        """The operator on the points of ``rods`` (ascending, this operator's rod numbers) alone: its
+        principal sub-operator, exact where the other points carry no force. It shares this
+        operator's diagonalised blocks and rho ladder (kept per set of rods)."""
+        rods = np.asarray(rods, dtype=np.int64)
+        key = rods.tobytes()
+        if key not in self._restricted:
+            sub = object.__new__(RodBlockDelassus)
+            points = np.concatenate([np.arange(self._starts[a], self._starts[a + 1]) for a in rods]) if len(rods) else np.zeros(0, dtype=int)
+            sub.blocks = [self.blocks[a] for a in rods]
+            sel = (3 * rods[:, None] + np.arange(3)).ravel()
+            sub.H = np.ascontiguousarray(self.H[np.ix_(sel, sel)])
+            sub.inv_k = self.inv_k[points]
+            sub.rod = np.repeat(np.arange(len(rods)), np.diff(self._starts)[rods])
+            sub.n_rods = len(rods)
+            sub._starts = np.r_[0, np.cumsum(np.diff(self._starts)[rods])]
+            sub._set_blocks([self._eig[a] for a in rods], [self._Q[a] for a in rods])
+            sub._restricted, sub._factors, sub.factorisations, sub.rho0 = {}, {}, 0, self.rho0
+            sub.points = points
+            self._restricted[key] = sub
+        return self._restricted[key]
+
+    @property
+    def all_factorisations(self) -> int:
+        """Factorisations of this operator and of its restrictions."""
+        return self.factorisations + sum(sub.factorisations for sub in self._restricted.values())
+
+    def rod_sum(self, f: np.ndarray) -> np.ndarray:
+        """S^T f: the forces (m, 3) summed per rod (R, 3)."""
+        return np.stack([np.bincount(self.rod, weights=f[:, c], minlength=self.n_rods) for c in range(3)], axis=1)
 
     def elastic(self, f):
-        return self.elastic_unknowns(f)[self.groups]
+        out = np.empty_like(f, dtype=float)
+        for a, C in enumerate(self.blocks):
+            lo, hi = self._starts[a], self._starts[a + 1]
+            out[lo:hi] = (C @ f[lo:hi].ravel()).reshape(-1, 3)
+        return out + (self.H @ self.rod_sum(f).ravel()).reshape(-1, 3)[self.rod]
+
+    def _block_solve(self, d_inv_all, r):
+        out = np.empty_like(r)
+        for a, Q in enumerate(self._Q):
+            lo, hi = 3 * self._starts[a], 3 * self._starts[a + 1]
+            out[lo:hi] = Q @ (d_inv_all[lo:hi, None] * (Q.T @ r[lo:hi]))
+        return out
 
     def _factorise(self, rho):
-        d_inv = 1.0 / (self.inv_k + rho)
-        per_group = np.bincount(self.groups, weights=d_inv, minlength=self.n_groups)
-        A = self.Cp * np.repeat(per_group, 3)[None, :]
-        A[np.diag_indices_from(A)] += 1.0
-        # (I + C_p diag)^-1 C_p: one small product per solve
-        return np.ascontiguousarray(np.linalg.solve(A, self.Cp)), d_inv
+        d_inv = 1.0 / (self.eigenvalues + rho)
+        S = np.zeros((3 * self.m, 3))
+        S[np.arange(3 * self.m), np.tile(np.arange(3), self.m)] = 1.0
+        Y = self._block_solve(d_inv, S)  # (3 m, 3): B^-1 S, each rod's rows its own block's
+        T = np.zeros((3 * self.n_rods, 3 * self.n_rods))
+        for a in range(self.n_rods):
+            lo, hi = 3 * self._starts[a], 3 * self._starts[a + 1]
+            T[3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = S[lo:hi].T @ Y[lo:hi]
+        K = np.linalg.solve(np.eye(3 * self.n_rods) + self.H @ T, self.H)
+        return np.ascontiguousarray(K), np.ascontiguousarray(Y), d_inv
 
     def _solve(self, factor, r, rho):
-        K, d_inv = factor
-        rd = r * d_inv[:, None]
-        q = (K @ self.group_sum(rd).ravel()).reshape(-1, 3)
-        return rd - q[self.groups] * d_inv[:, None]
+        K, Y, d_inv = factor
+        v = self._block_solve(d_inv, r.reshape(-1, 1))[:, 0]
+        q = K @ self.rod_sum(v.reshape(-1, 3)).ravel()
+        return (v - np.einsum("ij,ij->i", Y, q.reshape(-1, 3)[np.repeat(self.rod, 3)])).reshape(-1, 3)
 
     def kernel_operator(self, rung):
-        K, d_inv = self._factor(rung)
-        return admm_kernels.GROUPED, _EMPTY_2D, K, d_inv, self._groups_int, self.n_groups
+        K, Y, d_inv = self._factor(rung)
+        return admm_kernels.ROD_BLOCKS, self._Q_flat, K, Y, d_inv, self._rod_int, self.n_rods
+
+
+def rod_block_compliance(blocks: list, H: np.ndarray, rod: np.ndarray) -> np.ndarray:
+    """The elastic part of :class:`RodBlockDelassus`, blockdiag(C_aa) + S H S^T, as one (3 m, 3 m)
+    matrix (for the Newton contact solver); ``rod`` (m,) non-decreasing."""
+    _, idx = np.unique(rod, return_inverse=True)
+    m = len(idx)
+    S = np.zeros((3 * m, H.shape[0]))
+    S[np.arange(3 * m), 3 * np.repeat(idx, 3) + np.tile(np.arange(3), m)] = 1.0
+    E = S @ H @ S.T
+    lo = 0
+    for C in blocks:
+        E[lo : lo + len(C), lo : lo + len(C)] += C
+        lo += len(C)
+    return E
+
+
+def rod_resultant_coupling(C: np.ndarray, rod: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """H (3 R, 3 R) m/N: the mean mutual compliance of rods, H_ab = sum_ij w_i w_j C_ij (3 x 3 blocks,
+    i on rod a, j on rod b, w the points' areas normalised per rod), zero for a = b. C (3 n, 3 n) a
+    compliance of n points (or patches) with rods ``rod`` (n,) and areas ``weight`` (n,): a force
+    spread over rod b in proportion to area moves rod a's points by H_ab on average."""
+    rods, idx = np.unique(rod, return_inverse=True)
+    R = len(rods)
+    w = weight / np.bincount(idx, weights=weight)[idx]
+    A = np.zeros((3 * R, 3 * len(rod)))  # the area-weighted mean per rod and axis
+    A[3 * np.repeat(idx, 3) + np.tile(np.arange(3), len(rod)), np.arange(3 * len(rod))] = np.repeat(w, 3)
+    H = A @ C @ A.T
+    for a in range(R):
+        H[3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = 0.0
+    return 0.5 * (H + H.T)
 
 
 def project_cone(v: np.ndarray, n: np.ndarray, mu: float) -> np.ndarray:
@@ -325,7 +414,6 @@ class StepLaw:
     f_t: np.ndarray  # (m, 3) tangential force, N
     touching: np.ndarray  # (m,) bool
     stick: np.ndarray  # (m,) bool
-    f_unknowns: np.ndarray  # forces summed per unknown (per group when grouped)
     f_extra: np.ndarray | None = None  # (m, 3) N second-order rod kinematics: the P-delta load on the points (not a contact force)
 
 
@@ -362,6 +450,44 @@ def _state_key(u: np.ndarray) -> bytes:
 
     return hashlib.blake2b(np.ascontiguousarray(u, dtype=float).tobytes(), digest_size=16).digest()
 
+
+
+def admm_on_touching_rods(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float, f0=None, z0=None, rung: int = 0, max_iterations: int = 200,
+                          **kw):
+    """:func:`admm_contact` on the rods that can touch, for a :class:`RodBlockDelassus` (any other
+    operator: on all points). A rod none of whose points reaches the indenter unloaded (b_n >= 0
+    everywhere) and that carried no force at the warm start is left out; the answer (zero force on
+    it) is then checked on it, sigma_n = (G f + b)_n >= 0 at every point (for f = 0 this is the whole
+    Coulomb problem's condition), and a rod that fails is added and the solve warm-started again
+    (at most once per rod, all within ``max_iterations``). Exact, and on the default demo's punch
+    it leaves out about half of the rods near its path. Same returns as :func:`admm_contact`."""
+    if not isinstance(G, RodBlockDelassus):
+        return admm_contact(G, b, n, mu, f0, z0, rung, max_iterations=max_iterations, **kw)
+    m = len(b)
+    f = np.zeros((m, 3)) if f0 is None else np.array(f0, dtype=float)
+    z = None if z0 is None else np.array(z0, dtype=float)
+    active = np.zeros(G.n_rods, dtype=bool)
+    active[G.rod[np.einsum("ij,ij->i", b, n) < 0.0]] = True
+    active[G.rod[np.any(f != 0.0, axis=1)]] = True
+    used = 0
+    while True:
+        sub = G.restrict(np.flatnonzero(active))
+        p = sub.points
+        f_p, z_p, rung, it, res, tol = admm_contact(sub, b[p], n[p], mu, f[p], None if z is None else z[p], rung,
+                                                    max_iterations=max(max_iterations - used, 1), **kw)
+        used += it
+        f = np.zeros((m, 3))
+        f[p] = f_p
+        sigma = G.apply(f) + b
+        rest = ~active[G.rod]
+        # the left-out points' multipliers as admm_contact would start them: -(sigma + Gamma(sigma))
+        z_full = -(sigma + de_saxce(sigma, n, mu))
+        z_full[p] = z_p
+        z = z_full
+        failing = rest & (np.einsum("ij,ij->i", sigma, n) < 0.0)
+        if not failing.any() or used >= max_iterations:
+            return f, z, rung, used, res, tol
+        active[G.rod[failing]] = True
 
 
 def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, pose_old, state, friction: float, k: np.ndarray,
@@ -426,7 +552,7 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
             z = None
             it, res, tol = 0, 0.0, 0.0
         else:
-            f, z, rung, it, res, tol = admm_contact(G, b, n, friction, f, z, rung, rtol=rtol, f_scale=f_floor_n, max_iterations=max_iterations)
+            f, z, rung, it, res, tol = admm_on_touching_rods(G, b, n, friction, f, z, rung, rtol=rtol, f_scale=f_floor_n, max_iterations=max_iterations)
         if kin is not None:
             f_lin, f_last = (f_last if f_last is not None else np.zeros_like(f)), f
         info.iterations += it
@@ -478,11 +604,11 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
     f_t = f - fn[:, None] * n
     touching = fn > 0
     stick = touching & (np.linalg.norm(f_t, axis=1) < friction * fn * (1.0 - 1e-6))
-    return u, StepLaw(f, fn, f_t, touching, stick, f, extra), info
+    return u, StepLaw(f, fn, f_t, touching, stick, extra), info
 
 
 def _hidden(kin, G: _Delassus, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The points' displacement beyond u_0 + E f at point forces f (m, 3): q(f) + E f_pd, and f_pd (m, 3) N."""
-    q, load = kin.q_and_load(f, G.group_sum(f))
+    q, load = kin.q_and_load(f)
     return (q + G.elastic(load) if kin.pdelta else q), load
 

@@ -10,14 +10,17 @@ base bottom clamped, optional gravity) and the contact on condensed compliance
   solves the contact on C, and the whole field follows from one solve per step with the contact
   forces (done as one multi-right-hand-side call over the episode: the same arithmetic, batched).
   The field is exact for the discretisation, up to the penalty.
-- ``reduced``: the contact points are grouped into patches (a few per rod tip, a few angular
-  sectors of the side band); the precompute stores the patch compliance and, per unit patch force,
-  the centroid stress of every tet and the displacement of every vertex. A step is then a small
-  contact solve plus a superposition, with no sparse solve. The contact is still evaluated at
-  every point near the path, each moving with its patch (:func:`fem.condensed.solve_path` with
-  groups): a patch straddling the indenter's edge carries only the force of its touching points.
-  The patch's rigid motion and its force spread by area are the approximation: its error against
-  ``linear`` is what ``mlsim accuracy`` reports.
+- ``reduced``: the same contact points, and no sparse solve per frame. The precompute solves once
+  per point and axis (cached per sensor) and keeps each rod's own block of the point compliance,
+  the patches' compliance (a few patches per rod tip, a few angular sectors of the side band) and,
+  per unit patch force, the centroid stress of every tet and the displacement of every vertex, plus
+  each rod's point responses beyond its patches' on its own tets and vertices. A step solves the
+  contact on each rod's exact point compliance with the rods coupled through their resultants
+  (:class:`fem.contact_admm.RodBlockDelassus`); the fields superpose the patch resultants'
+  responses and each loaded rod's own correction. The approximations, against ``linear``: a rod
+  feels another's load as its resultant (through the base, far from the tips), and tets off the
+  loaded rod see patch resultants; on the default demo and the tiny scene's slide both cost under
+  1 % in per-rod contact force and peak stress (tests/test_tier_agreement.py).
 
 With ``fidelity.solve.rod_kinematics = "second_order"`` (ADMM contact only) both tiers add the bent
 rods' second-order rotation terms to the contact kinematics and the displacement output, and the
@@ -43,13 +46,13 @@ import skfem
 from skfem import LinearForm
 from threadpoolctl import threadpool_limits
 
-from fem import condensed, elasticity, fields, rod_kinematics, trajectory
+from fem import condensed, contact_admm, elasticity, fields, rod_kinematics, trajectory
 from fem.indenters import IndenterShape, Pose, shape_from_scene
 from fem.indenters import gap as indenter_gap
 from fem.nonlinear import SolverError
 
 __all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "ContactSetup", "tip_height_m", "build_reduced", "run_episode",
-           "layer_materials", "bending_ratio", "geometric_error_estimate", "patch_error_estimate"]
+           "layer_materials", "bending_ratio", "geometric_error_estimate"]
 
 GRAVITY_M_S2 = 9.80665
 # The contact Newton (fem.condensed._newton_points): its trust region in edge lengths, and the
@@ -221,30 +224,43 @@ def compliance(body: LinearBody, W: sp.spmatrix, block: int = 256, progress=None
 
 @dataclass
 class ReducedModel:
-    """The ``reduced`` tier's precompute: patch positions, areas and rods, patch compliance, and the
+    """The ``reduced`` tier's precompute: the contact points' compliance per rod (each rod's own block,
+    exact), the patches' compliance (the rods' mutual compliance is their patches' mean), and the
     responses to a unit force on each patch (float32): centroid stress (6 T, 3 M) and vertex
     displacement (3 P, 3 M); plus the gravity state."""
 
-    X: np.ndarray  # (M, 3)
+    X: np.ndarray  # (M, 3) patch centroids
     area_m2: np.ndarray  # (M,)
     rod: np.ndarray  # (M,)
-    C: np.ndarray  # (3 M, 3 M)
+    C: np.ndarray  # (3 M, 3 M) patch compliance
     stress_response: np.ndarray  # (6 T, 3 M)
     displacement_response: np.ndarray  # (3 P, 3 M), vertex-major (3 p + c)
     stress_gravity: np.ndarray  # (6 T,)
     displacement_gravity: np.ndarray  # (3 P,)
-    point_u_gravity: np.ndarray  # (M, 3)
+    patch_u_gravity: np.ndarray  # (M, 3)
     weight_n: np.ndarray  # (3,) the body's weight
     lam: np.ndarray  # (T,) Pa, per tet (for the strain energy density)
     mu: np.ndarray  # (T,) Pa
     point_X: np.ndarray  # (m, 3) the contact points (the contact is evaluated at each)
     point_area_m2: np.ndarray  # (m,)
     point_patch: np.ndarray  # (m,) the patch of each point
+    point_rod: np.ndarray  # (m,)
+    point_u_gravity: np.ndarray  # (m, 3)
+    point_compliance_blocks: np.ndarray  # each rod's (3 m_a, 3 m_a) point compliance, rods ascending, raveled one after the other
+    # per rod (ascending, rods >= 0 with points): what its own points' forces do to its own tets' stress
+    # and vertices' displacement beyond their patches' resultants (the point response minus the patch's),
+    # rows (6 T_a) component-major (c T + t) and (3 P_a) vertex-major, columns its points' (3 m_a)
+    local_stress_rows: np.ndarray  # concatenated row indices into the (6 T) stress
+    local_displacement_rows: np.ndarray  # ... into the (3 P) displacement
+    local_stress: np.ndarray  # concatenated raveled (6 T_a, 3 m_a) float32
+    local_displacement: np.ndarray  # concatenated raveled (3 P_a, 3 m_a) float32
+    local_sizes: np.ndarray  # (R, 3) per rod: rod index, 6 T_a, 3 P_a
     element: str = "P2P1"
     seconds: dict = field(default_factory=dict)
 
     _ARRAYS = ("X", "area_m2", "rod", "C", "stress_response", "displacement_response", "stress_gravity", "displacement_gravity",
-               "point_u_gravity", "weight_n", "lam", "mu", "point_X", "point_area_m2", "point_patch")
+               "patch_u_gravity", "weight_n", "lam", "mu", "point_X", "point_area_m2", "point_patch", "point_rod", "point_u_gravity",
+               "point_compliance_blocks", "local_stress_rows", "local_displacement_rows", "local_stress", "local_displacement", "local_sizes")
 
     def save(self, path) -> None:
         np.savez(path, element=self.element, seconds_json=json.dumps(self.seconds), **{k: getattr(self, k) for k in self._ARRAYS})
@@ -253,6 +269,26 @@ class ReducedModel:
     def load(cls, path) -> "ReducedModel":
         with np.load(path) as z:
             return cls(**{k: z[k] for k in cls._ARRAYS}, element=str(z["element"]), seconds=json.loads(str(z["seconds_json"])))
+
+    def rod_blocks(self) -> dict[int, np.ndarray]:
+        """Each rod's point compliance (3 m_a, 3 m_a), its points in ascending index order."""
+        out, offset = {}, 0
+        for r in np.unique(self.point_rod):
+            n = 3 * int(np.sum(self.point_rod == r))
+            out[int(r)] = self.point_compliance_blocks[offset : offset + n * n].reshape(n, n)
+            offset += n * n
+        return out
+
+    def local_responses(self) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """Per rod: (stress rows, stress correction (6 T_a, 3 m_a), displacement rows, displacement
+        correction (3 P_a, 3 m_a)), its points in ascending index order."""
+        out, o_s, o_d, r_s, r_d = {}, 0, 0, 0, 0
+        for r, n_s, n_d in self.local_sizes:
+            n_c = 3 * int(np.sum(self.point_rod == r))
+            out[int(r)] = (self.local_stress_rows[r_s : r_s + n_s], self.local_stress[o_s : o_s + n_s * n_c].reshape(n_s, n_c),
+                           self.local_displacement_rows[r_d : r_d + n_d], self.local_displacement[o_d : o_d + n_d * n_c].reshape(n_d, n_c))
+            r_s, r_d, o_s, o_d = r_s + n_s, r_d + n_d, o_s + n_s * n_c, o_d + n_d * n_c
+        return out
 
     @classmethod
     def build(cls, body: LinearBody, points: condensed.ContactPoints, patches: np.ndarray, progress=None) -> "ReducedModel":
@@ -265,24 +301,73 @@ class ReducedModel:
         w = points.area_m2 / area[patches]
         rows = (3 * np.arange(points.m)[:, None] + np.arange(3)).ravel()
         cols = (3 * patches[:, None] + np.arange(3)).ravel()
-        P = sp.csc_matrix((np.repeat(w, 3), (rows, cols)), shape=(3 * points.m, 3 * M))
-        Wp = (points.W @ P).tocsc()
+        P = sp.csr_matrix((np.repeat(w, 3), (rows, cols)), shape=(3 * points.m, 3 * M))
         T, Pn = body.mesh.n_tets, body.mesh.n_points
-        stress = np.empty((6 * T, 3 * M), dtype=np.float32)
-        disp = np.empty((3 * Pn, 3 * M), dtype=np.float32)
-        C = np.empty((3 * M, 3 * M))
+        stress = np.zeros((6 * T, 3 * M), dtype=np.float32)
+        disp = np.zeros((3 * Pn, 3 * M), dtype=np.float32)
         vdofs = body.vertex_dofs.ravel()
+        # one solve per point and axis, the points rod by rod: each rod's own block of the point
+        # compliance, and the patches' responses as the area-weighted sums of their points'
+        order = np.argsort(points.rod, kind="stable")
+        col_order = (3 * order[:, None] + np.arange(3)).ravel()
+        point_rod = points.rod
+        blocks = {int(r): np.zeros((3 * int(np.sum(point_rod == r)),) * 2) for r in np.unique(point_rod)}
+        place = np.empty(3 * points.m, dtype=int)  # each point column's index within its rod's block
+        for r in blocks:
+            idx = np.flatnonzero(point_rod == r)
+            place[(3 * idx[:, None] + np.arange(3)).ravel()] = np.arange(3 * len(idx))
+        rod3 = np.repeat(point_rod, 3)
+        mesh = body.mesh
+        local_rows = {}
+        for r in blocks:
+            if r < 0:
+                continue
+            tets = np.flatnonzero(mesh.tet_rod == r)
+            verts = np.unique(mesh.tets[tets])
+            local_rows[r] = ((np.arange(6)[:, None] * T + tets[None, :]).ravel(), (3 * verts[:, None] + np.arange(3)).ravel())
+        local = {r: (np.zeros((len(rs), len(blocks[r])), dtype=np.float32), np.zeros((len(rd), len(blocks[r])), dtype=np.float32))
+                 for r, (rs, rd) in local_rows.items()}
+        Wd = points.W.tocsc()
+        Wp = (Wd @ P).tocsc()
+        C_patch = np.zeros((3 * M, 3 * M))  # P^T C P: the patches' mean displacements under their own loads
         block = 128
-        for s in range(0, 3 * M, block):
-            Xs = body.solve(Wp[:, s : s + block].toarray())
-            C[:, s : s + block] = Wp.T @ Xs
-            stress[:, s : s + block] = body.S @ Xs
-            disp[:, s : s + block] = Xs[vdofs]
+        n_cols = 3 * points.m
+        for s in range(0, n_cols, block):
+            cs = col_order[s : s + block]
+            Xs = body.solve(Wd[:, cs].toarray())
+            WtX = Wd.T @ Xs
+            for r in np.unique(rod3[cs]):
+                on = rod3[cs] == r
+                rows_r = np.flatnonzero(rod3 == r)
+                blocks[int(r)][np.ix_(place[rows_r], place[cs[on]])] = WtX[rows_r][:, on]
+            SX, DX = body.S @ Xs, Xs[vdofs]
+            for r in np.unique(rod3[cs]):
+                if r in local:
+                    on = rod3[cs] == r
+                    local[r][0][:, place[cs[on]]] = SX[local_rows[r][0]][:, on]
+                    local[r][1][:, place[cs[on]]] = DX[local_rows[r][1]][:, on]
+            Pb = P[cs]  # (b, 3 M): these columns' shares of their patches
+            touched = np.unique(Pb.indices)
+            Pt = Pb[:, touched].toarray()
+            stress[:, touched] += SX @ Pt
+            disp[:, touched] += DX @ Pt
+            C_patch[:, touched] += (Wp.T @ Xs) @ Pt
             if progress is not None:
-                progress(min(s + block, 3 * M), 3 * M)
+                progress(min(s + block, n_cols), n_cols)
+        blocks = {r: 0.5 * (B + B.T) for r, B in blocks.items()}
+        for r, (ls, ld) in local.items():  # the point responses beyond their patches'
+            idx = np.flatnonzero(point_rod == r)
+            pc = (3 * patches[idx][:, None] + np.arange(3)).ravel()
+            ls -= stress[np.ix_(local_rows[r][0], pc)]
+            ld -= disp[np.ix_(local_rows[r][1], pc)]
+        rods_local = sorted(local)
         xg = body.x_gravity
-        return cls(X, area, rod, 0.5 * (C + C.T), stress, disp, (body.S @ xg), xg[vdofs], (Wp.T @ xg).reshape(M, 3), body.weight_n(),
-                   body.lam, body.mu, points.X.copy(), points.area_m2.copy(), np.asarray(patches).copy(), body.element,
+        return cls(X, area, rod, 0.5 * (C_patch + C_patch.T), stress, disp, (body.S @ xg), xg[vdofs], (Wp.T @ xg).reshape(M, 3),
+                   body.weight_n(), body.lam, body.mu, points.X.copy(), points.area_m2.copy(), np.asarray(patches).copy(), point_rod.copy(),
+                   (Wd.T @ xg).reshape(-1, 3), np.concatenate([blocks[r].ravel() for r in sorted(blocks)]),
+                   _concat([local_rows[r][0] for r in rods_local], int), _concat([local_rows[r][1] for r in rods_local], int),
+                   _concat([local[r][0].ravel() for r in rods_local], np.float32), _concat([local[r][1].ravel() for r in rods_local], np.float32),
+                   np.array([(r, len(local_rows[r][0]), len(local_rows[r][1])) for r in rods_local], dtype=int).reshape(-1, 3), body.element,
                    {"precompute": time.perf_counter() - t0})
 
 
@@ -356,7 +441,6 @@ class Episode:
             # linear tiers: how far the rods bend, and the per-rod contact force error that implies (fem.quasistatic)
             "rod_bending_ratio": self.seconds.get("rod_bending_ratio"),
             "geometric_error_estimate": self.seconds.get("geometric_error_estimate"),
-            "patch_error_estimate": self.seconds.get("patch_error_estimate"),
             "per_rod_peak": self.rod_peaks(),
         }
 
@@ -393,6 +477,28 @@ _EPISODE_ARRAYS = ("t_s", "frame_step", "pose", "force_target_n", "stress", "von
 
 def _pose(state: trajectory.IndenterState) -> Pose:
     return Pose(tuple(state.position_m), state.yaw_rad)
+
+
+def _concat(arrays: list, dtype) -> np.ndarray:
+    return np.concatenate(arrays).astype(dtype) if arrays else np.zeros(0, dtype=dtype)
+
+
+def _rod_operator(reduced: ReducedModel, keep: np.ndarray) -> tuple[list, np.ndarray]:
+    """The reduced tier's elastic operator on the contact points ``keep`` (sorted by rod): each rod's
+    block of the point compliance (3 m_a, 3 m_a) and the rods' mutual compliance H (3 R, 3 R)
+    through their resultants, from the patch compliance (:func:`fem.contact_admm.rod_resultant_coupling`)."""
+    all_blocks = reduced.rod_blocks()
+    rods = np.unique(reduced.point_rod[keep])
+    blocks = []
+    for r in rods:
+        on_rod = np.flatnonzero(reduced.point_rod == r)
+        local = np.searchsorted(on_rod, keep[reduced.point_rod[keep] == r])
+        idx = (3 * local[:, None] + np.arange(3)).ravel()
+        blocks.append(all_blocks[int(r)][np.ix_(idx, idx)])
+    patch_rods = np.unique(reduced.rod)
+    H_all = contact_admm.rod_resultant_coupling(reduced.C, reduced.rod, reduced.area_m2)
+    sel = (3 * np.searchsorted(patch_rods, rods)[:, None] + np.arange(3)).ravel()
+    return blocks, H_all[np.ix_(sel, sel)]
 
 
 def path_points(X: np.ndarray, shape: IndenterShape, load, grid: trajectory.TimeGrid, tip_z: float, margin_m: float) -> np.ndarray:
@@ -498,7 +604,6 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     setup = ContactSetup.from_scene(scene, mesh, settings, e_contact)
     shape, tip_z, grid, solve_kw = setup.shape, setup.tip_z_m, setup.grid, setup.solve_kw()
     t0 = time.perf_counter()
-    groups = None
     if settings.rod_kinematics not in rod_kinematics.ROD_KINEMATICS:
         raise ValueError(f'fidelity.solve.rod_kinematics = "{settings.rod_kinematics}": choose one of {", ".join(rod_kinematics.ROD_KINEMATICS)}')
     second_order = settings.rod_kinematics == "second_order"
@@ -506,21 +611,23 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         raise ValueError('fidelity.solve.rod_kinematics = "second_order" needs fidelity.solve.contact_solver = "admm"')
     kinematics = None
     if settings.tier == "reduced":
-        # contact at the patches' points near the path, elasticity per patch (fem.condensed groups)
+        # contact at every point near the path, rod by rod: each rod's points with their own compliance,
+        # the rods coupled through their resultants (fem.contact_admm.RodBlockDelassus)
         keep = path_points(reduced.point_X, shape, load, grid, tip_z, settings.path_margin_m)
-        used, groups = np.unique(reduced.point_patch[keep], return_inverse=True)
-        cols = (3 * used[:, None] + np.arange(3)).ravel()
-        X, area, rod = reduced.point_X[keep], reduced.point_area_m2[keep], reduced.rod[used]
-        C = reduced.C[np.ix_(cols, cols)]
-        u0 = reduced.point_u_gravity[used]
+        keep = keep[np.argsort(reduced.point_rod[keep], kind="stable")]
+        X, area, rod = reduced.point_X[keep], reduced.point_area_m2[keep], reduced.point_rod[keep]
+        u0 = reduced.point_u_gravity[keep]
+        blocks, H = _rod_operator(reduced, keep)
+        C = None  # the ADMM solver takes the blocks; the Newton solver their dense form (below)
         timings.update({f"precompute_{k}": v for k, v in reduced.seconds.items()})
         timings["precompute"] = sum(reduced.seconds.values())
         if second_order:
             t_k = time.perf_counter()
-            sections = _rod_sections(scene, mesh, reduced.rod[used][groups], setup.tip_z_m)
+            sections = _rod_sections(scene, mesh, rod, setup.tip_z_m)
+            # a point's force moves the rods as its patch's resultant does (the fields' approximation)
+            cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
             A = np.asarray(sections.O @ reduced.displacement_response[:, cols], dtype=float)
-            kinematics = rod_kinematics.RodKinematics(sections, A, sections.O @ reduced.displacement_gravity.astype(float), X,
-                                                      reduced.rod[used][groups])
+            kinematics = rod_kinematics.RodKinematics(sections, A, sections.O @ reduced.displacement_gravity.astype(float), X, rod)
             timings["precompute_rod_kinematics"] = time.perf_counter() - t_k
             timings["precompute"] += timings["precompute_rod_kinematics"]
     else:
@@ -538,15 +645,14 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             C = compliance(body, points.W)
         u0 = (points.W.T @ body.x_gravity).reshape(-1, 3)
         timings["precompute"] = time.perf_counter() - t0
-    m = len(u0)  # unknowns: points (linear) or patches (reduced)
-    lift = (lambda v: v) if groups is None else (lambda v: v[groups])  # unknowns -> points
+    m = len(u0)
     k_n, k_t = setup.penalties(area)
     contact_kw = {"max_iterations": CONTACT_MAX_ITERATIONS}
+    if settings.tier == "reduced" and settings.contact_solver != "admm":
+        C = contact_admm.rod_block_compliance(blocks, H, rod)
     if settings.contact_solver == "admm":
-        from fem import contact_admm
-
         t_d = time.perf_counter()
-        delassus = contact_admm.DenseDelassus(C, k_n) if groups is None else contact_admm.GroupedDelassus(C, groups, k_n)
+        delassus = contact_admm.DenseDelassus(C, k_n) if settings.tier == "linear" else contact_admm.RodBlockDelassus(blocks, H, rod, k_n)
         delassus.solve(np.zeros((len(X), 3)), 0)  # the first factorisation belongs to the precompute
         timings["precompute_delassus"] = time.perf_counter() - t_d
         timings["precompute"] += timings["precompute_delassus"]
@@ -556,7 +662,6 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     force_kw = contact_kw if settings.contact_solver != "admm" else {**contact_kw, "admm_rtol": 1e-7}
     worst = {"residual_n": 0.0, "ratio": 0.0, "step": -1, "unlinearised": []}
     worst_bend = [0.0, -1]  # the largest bending_ratio and its step
-    straddling_n = 0.0  # reduced tier: the largest normal force a rod carries on patches only partly in contact
     n_rods = int(mesh.tet_rod.max()) + 1
     rod_height = scene.sensor.rod.height_mm * 1e-3
 
@@ -569,7 +674,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     iters = np.zeros(S, dtype=np.int64)
     stick = np.zeros(S)
     state = trajectory.initial_state(load, tip_z)
-    pstate = condensed.PointState(lift(u0).copy(), np.zeros((len(X), 3)))
+    pstate = condensed.PointState(u0.copy(), np.zeros((len(X), 3)))
     u_now = u0.copy()
     pose_old = _pose(state)
     normal_now = 0.0
@@ -603,7 +708,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                     guess = 2.0 * u_now - u_last  # the same motion as the last step: extrapolate
                 u_before = u_now
                 u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, guess=guess,
-                                                     groups=groups, **contact_kw, **solve_kw)
+                                                     **contact_kw, **solve_kw)
                 u_last, last_move = u_before, move
                 n_it = info["iterations"]
             else:
@@ -613,7 +718,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 def at_z(z):
                     p = Pose((state.position_m[0], state.position_m[1], z), state.yaw_rad)
                     u, law, info = condensed.solve_path(C, u0, X, shape, p, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case,
-                                                     groups=groups, **force_kw, **solve_kw)
+                                                     **force_kw, **solve_kw)
                     count[0] += info["iterations"]
                     return condensed.normal_force(law), (u, law, p, info)
 
@@ -633,19 +738,17 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             bend = bending_ratio(u - u0, rod, rod_height)
             if bend > worst_bend[0]:
                 worst_bend[:] = [bend, s]
-            pstate = condensed.PointState(lift(u).copy(), law.f_t.copy())
+            pstate = condensed.PointState(u.copy(), law.f_t.copy())
             u_now = u
             pose_old = pose
             forces[s] = info["f"]
             if extras is not None and law.f_extra is not None:
-                extras[s] = contact_kw["delassus"].group_sum(law.f_extra)
+                extras[s] = law.f_extra
             normal_now = condensed.normal_force(law)
             pose_arr[s] = (*pose.position_m, pose.yaw_rad)
             iters[s] = n_it
             touching = law.touching
             stick[s] = float(law.stick.sum() / touching.sum()) if touching.any() else np.nan
-            if groups is not None and touching.any():
-                straddling_n = max(straddling_n, _straddling_force(law.fn, touching, groups, rod))
             step_ms[s] = 1e3 * (time.perf_counter() - t_step)
             bar(s + 1)
     timings["contact_steps"] = time.perf_counter() - t_loop
@@ -664,7 +767,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     timings["contact_step_ms"] = step_ms.tolist()  # each step's contact solve (benchmarks take medians by kind of frame)
     if settings.contact_solver == "admm":
         timings["contact_worst_residual_n"] = worst["residual_n"]
-        timings["contact_factorisations"] = contact_kw["delassus"].factorisations
+        timings["contact_factorisations"] = getattr(contact_kw["delassus"], "all_factorisations", contact_kw["delassus"].factorisations)
         timings["contact_unlinearised_steps"] = len(worst["unlinearised"])
         if worst["ratio"] > 1.0 and log is not None:
             log(f"warning: the contact solve of step {worst['step']} stopped at its bound of {settings.contact_max_iterations} ADMM "
@@ -683,12 +786,27 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     first, frame_of = _distinct_rows(loads.reshape(S, -1))
     U = len(first)
     if settings.tier == "reduced":
-        # (M, U) loads of every patch, zero away from the path: one product with the whole response
-        # (gathering the used columns first copies the response, three times the product's cost)
-        Fp = np.zeros((reduced.stress_response.shape[1], U), dtype=np.float32)
-        Fp[cols] = loads[first].reshape(U, 3 * m).T
-        stress = (reduced.stress_response @ Fp).T.reshape(U, 6, T) + reduced.stress_gravity.reshape(6, T)
-        disp = ((reduced.displacement_response @ Fp).T + reduced.displacement_gravity).reshape(U, -1, 3)
+        # (M, U) the points' loads summed per patch, zero away from the path: one product with the whole
+        # response (gathering the used columns first copies the response, three times the product's cost)
+        patch_cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
+        to_patches = sp.csr_matrix((np.ones(3 * m), (patch_cols, np.arange(3 * m))), shape=(reduced.stress_response.shape[1], 3 * m))
+        Fp = (to_patches @ loads[first].reshape(U, 3 * m).T).astype(np.float32)
+        stress = (reduced.stress_response @ Fp).T + reduced.stress_gravity
+        disp = (reduced.displacement_response @ Fp).T + reduced.displacement_gravity
+        # each rod's own tets and vertices: its points' forces as they are, not as patch resultants
+        for r, (rows_s, corr_s, rows_d, corr_d) in reduced.local_responses().items():
+            on_rod = np.flatnonzero(rod == r)
+            if not len(on_rod):
+                continue
+            all_on_rod = np.flatnonzero(reduced.point_rod == r)
+            local = np.searchsorted(all_on_rod, keep[on_rod])
+            # the rod's loads on all its points, zero off the path (no copy of the corrections' columns)
+            f_r = np.zeros((len(all_on_rod), 3, U), dtype=np.float32)
+            f_r[local] = np.moveaxis(loads[first][:, on_rod], 0, -1)
+            f_r = f_r.reshape(-1, U)
+            stress[:, rows_s] += (corr_s @ f_r).T
+            disp[:, rows_d] += (corr_d @ f_r).T
+        stress, disp = stress.reshape(U, 6, T), disp.reshape(U, -1, 3)
         total = forces.sum(axis=1)
         reaction = -(total + reduced.weight_n)
     else:
@@ -712,16 +830,6 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     on_rod = rod >= 0
     rod_force = np.zeros((S, n_rods, 3))
     np.add.at(rod_force, (slice(None), rod[on_rod]), forces[:, on_rod])
-    if settings.tier == "reduced":
-        rod_peak_n = float(np.linalg.norm(rod_force, axis=2).max())
-        timings["patch_straddling_ratio"] = straddling_n / rod_peak_n if rod_peak_n > 0 else 0.0
-        timings["patch_error_estimate"] = patch_error_estimate(timings["patch_straddling_ratio"])
-        if timings["patch_error_estimate"] > PATCH_WARNING and log is not None:
-            log(f"warning: a rod carries {timings['patch_straddling_ratio']:.0%} of the largest per-rod force on patches only partly in "
-                "contact (the indenter's edge crosses them); the reduced tier moves each patch rigidly and spreads its force "
-                f"evenly, so its per-rod contact forces are estimated {timings['patch_error_estimate']:.0%} off the linear tier's "
-                "(fem.quasistatic.patch_error_estimate); raise fidelity.solve.patches_per_tip (one patch per point gives the "
-                'linear tier\'s answer) or use fidelity.solve.tier = "linear"')
     timings["per_frame_ms"] = 1e3 * (timings["contact_steps"] + timings["fields"]) / grid.n_frames
     episode = Episode(settings.tier, settings.element, steps, grid.frame_step, pose_arr, target, stress, vm, sed, disp.astype(np.float32),
                       rod_force, total, -total[:, 2], reaction, iters, stick, mesh.points, mesh.tets, mesh.tet_rod, mesh.layer_fraction,
@@ -742,39 +850,6 @@ GEOMETRIC_WARNING = 0.10  # warn when the estimated per-rod contact force error 
 # hold steps (the indenter where the last step left it) reuse the last step's answer, which is their
 # fixed point (tests/test_contact_admm.py solves them anyway and compares)
 REUSE_HOLDS = True
-
-
-# The reduced tier's patches move rigidly (their points lifted from one displacement, fem.condensed) and
-# its unit responses spread a patch's force evenly over its points. Where a patch lies wholly in or
-# wholly out of contact that costs little (rods under the demo's flat punch, at 1 % of its load: per-rod
-# normal force within 0.8 % of the linear tier's); where the indenter's edge crosses a patch, its force
-# sits on a few points that the patch model makes far stiffer (rods under the punch's rim: up to twice
-# the linear tier's force). The estimate is the largest force a rod carries on such straddling patches,
-# over the largest per-rod force (the straddling ratio), times PATCH_STRADDLE_ERROR, the largest measured
-# error per unit of that ratio: 0.76 (the tiny scene's sphere slide, 14 patches per tip: 63 % at a ratio
-# of 0.83); the default demo gives 0.39-0.48 at 7 and 14 per tip, 0.16 at 28 (issue 15's note).
-PATCH_STRADDLE_ERROR = 0.8
-PATCH_WARNING = 0.05  # warn when the estimated per-rod contact force error against the linear tier exceeds this
-
-
-def patch_error_estimate(straddling_ratio: float) -> float:
-    """Estimated relative error of the reduced tier's per-rod contact forces against the linear tier's,
-    from the straddling ratio (the largest per-rod normal force on patches only partly in contact over
-    the largest per-rod force): PATCH_STRADDLE_ERROR x it, at most 1. An estimate, not a bound."""
-    return float(min(PATCH_STRADDLE_ERROR * straddling_ratio, 1.0))
-
-
-def _straddling_force(fn: np.ndarray, touching: np.ndarray, groups: np.ndarray, rod: np.ndarray) -> float:
-    """The largest normal force (N) a rod carries on patches only partly in contact: fn (m,) the points'
-    normal forces, touching (m,), groups (m,) their patch, rod (M,) each patch's rod."""
-    M = len(rod)
-    n_touch = np.bincount(groups, weights=touching, minlength=M)
-    n_all = np.bincount(groups, minlength=M)
-    straddle = (n_touch > 0) & (n_touch < n_all) & (rod >= 0)
-    if not straddle.any():
-        return 0.0
-    on_patch = np.bincount(groups, weights=fn, minlength=M)
-    return float(np.bincount(rod[straddle], weights=on_patch[straddle]).max())
 
 
 def _holds(state: trajectory.IndenterState, pose_old: Pose, last_target_n: float) -> bool:

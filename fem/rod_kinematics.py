@@ -191,10 +191,10 @@ def pdelta_load(f: np.ndarray, tip_h: np.ndarray, point_rod: np.ndarray, length_
 
 
 class RodKinematics:
-    """The per-episode operators: section observation obs(f) = obs_0 + A f_u (f_u the forces on the
-    unknowns: points, or patches for the reduced tier) and the contact points' geometry.
+    """The per-episode operators: section observation obs(f) = obs_0 + A f (f the forces on the
+    contact points) and the contact points' geometry.
 
-    sections: :class:`RodSections`; A (n_obs, 3 m_u) the observation per unit force; obs_0 (n_obs,)
+    sections: :class:`RodSections`; A (n_obs, 3 m) the observation per unit point force; obs_0 (n_obs,)
     the observation without contact (gravity); X (m, 3) m the contact points, point_rod (m,) their
     rods (mesh rod index, -1 on the base); ``pdelta``: add the P-delta load."""
 
@@ -214,19 +214,18 @@ class RodKinematics:
         per_rod = np.stack([np.bincount(self.point_rod[on], weights=df[on, c], minlength=R) for c in range(3)], axis=1)
         return float(np.linalg.norm(per_rod, axis=1).sum() + np.linalg.norm(df[~on], axis=1).sum())
 
-    def observe(self, f_u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Section rotations (R, n_slabs + 1, 3) rad and tip displacements (R, 2) m at forces f_u (m_u, 3) N."""
-        return self.sections.split(self.obs_0 + self.A @ f_u.ravel())
+    def observe(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Section rotations (R, n_slabs + 1, 3) rad and tip displacements (R, 2) m at point forces f (m, 3) N."""
+        return self.sections.split(self.obs_0 + self.A @ f.ravel())
 
-    def q(self, f_u: np.ndarray) -> np.ndarray:
-        """The points' second-order displacement (m, 3) m at forces f_u (m_u, 3) N."""
-        theta, _ = self.observe(f_u)
+    def q(self, f: np.ndarray) -> np.ndarray:
+        """The points' second-order displacement (m, 3) m at point forces f (m, 3) N."""
+        theta, _ = self.observe(f)
         return second_order_points(theta, self.sections, self.X, self.point_rod)
 
-    def q_and_load(self, f_points: np.ndarray, f_u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """q (m, 3) m and the P-delta load (m, 3) N (zero without ``pdelta``) at point forces f_points
-        (m, 3) N whose sums on the unknowns are f_u."""
-        theta, tip_h = self.observe(f_u)
+    def q_and_load(self, f_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """q (m, 3) m and the P-delta load (m, 3) N (zero without ``pdelta``) at point forces f_points (m, 3) N."""
+        theta, tip_h = self.observe(f_points)
         q = second_order_points(theta, self.sections, self.X, self.point_rod)
         load = pdelta_load(f_points, tip_h, self.point_rod, self.sections.length_m) if self.pdelta else np.zeros_like(f_points)
         return q, load

@@ -93,8 +93,7 @@ class Row:
     failed: str = ""
     reference: bool = False
     # the linear tiers' own estimate of their per-rod contact force error from the rods' bending
-    # (fem.quasistatic.geometric_error_estimate), plus for the reduced tier its patches' against the
-    # linear tier (fem.quasistatic.patch_error_estimate), next to the measured one
+    # (fem.quasistatic.geometric_error_estimate), next to the measured one
     estimated_force_error: float = float("nan")
 
 
@@ -146,8 +145,7 @@ def solve_accuracy(scene, edges_mm, orders=(1, 2), tiers=("reduced", "linear", "
         row.element, row.n_tets, row.n_frames = ep.element, int(len(ep.mesh_tets)), ep.n_frames
         row.per_frame_ms = float(ep.seconds.get("per_frame_ms", np.nan))
         row.precompute_s = float(sum(v for k, v in ep.seconds.items() if k == "precompute" or k.startswith("body_")))
-        # the reduced tier's own estimate against the linear tier adds to the linear tiers' against the nonlinear
-        row.estimated_force_error = float(ep.seconds.get("geometric_error_estimate", np.nan)) + float(ep.seconds.get("patch_error_estimate", 0.0))
+        row.estimated_force_error = float(ep.seconds.get("geometric_error_estimate", np.nan))
         if ep.n_frames != ref_ep.n_frames:
             raise ValueError("the configurations disagree on the number of frames; the load and fps must not change")
         row.errors = {k: relative_error(meas[k], ref[k]) for k in ERRORS}

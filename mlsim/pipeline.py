@@ -244,9 +244,10 @@ def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
     """The reduced tier's precompute, keyed on the mesh and the body (not the load)."""
     from fem.quasistatic import build_reduced
 
-    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(_BODY_FIELDS), "version": "2"}
+    # 3: each rod's point compliance and local responses (fem.contact_admm.RodBlockDelassus)
+    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(_BODY_FIELDS), "version": "3"}
     return _cached_precompute(ctx, _REDUCED_MODEL, payload, lambda: build_reduced(scene, mesh),
-                              "[solve] reduced tier: precomputing the unit-patch responses (cached for this sensor)")
+                              "[solve] reduced tier: precomputing the contact points' compliance and responses (cached for this sensor)")
 
 
 def _solve_write(episode, out_dir: Path, ctx: "RunContext") -> list[Path]:
@@ -621,6 +622,7 @@ _STAGE_LIST = [
         doc="quasi-static FEM of the rods under the scene's load, per frame; writes a VTU time series, forces CSV and plot",
         reads=_BODY_FIELDS + ("load", "camera.fps", "fidelity.solve", "fidelity.mesh.edge_length_mm"),
         needs=("mesh",),
+        version="2",  # 2: the reduced tier's contact on each rod's point compliance (issue 15)
         run=_solve_run,
         save=_solve_save,
         load=_solve_load,

@@ -491,8 +491,9 @@ class SolveFidelity(_Model):
     substeps: Annotated[int, Strict(), Field(ge=1, le=1000)] = 1
     contact_band_mm: NonNeg = 2.0  # rod side faces this far below the tips may touch the indenter
     penalty_factor: Annotated[float, Strict(), Field(ge=1.0, le=1e6)] = 100.0  # contact stiffness = factor * E / h
-    patches_per_tip: Annotated[int, Strict(), Field(ge=1, le=64)] = 7  # reduced tier
-    patches_per_side: Annotated[int, Strict(), Field(ge=1, le=64)] = 8  # reduced tier
+    # reduced tier: patches whose resultants give the fields away from each loaded rod (fem.quasistatic)
+    patches_per_tip: Annotated[int, Strict(), Field(ge=1, le=64)] = 7
+    patches_per_side: Annotated[int, Strict(), Field(ge=1, le=64)] = 8
     gravity: Bool = True
     # linear/reduced tiers: refuse a step where a contact point moves more than this fraction of the
     # rod height (small-strain kinematics are no longer valid there; see fem.quasistatic)

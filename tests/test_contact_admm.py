@@ -121,25 +121,38 @@ def test_coupled_points_satisfy_the_friction_problem():
     assert f[:, 2].max() > 0 and (f[:, 2] == 0).any()  # some points touch, some do not
 
 
-def test_the_grouped_operator_is_the_dense_one_of_its_lifted_compliance():
-    """Points moving with their patches: G = L C_p L^T + diag(1/k). The Woodbury solve and the
-    product equal the dense operator's."""
-    rng = np.random.default_rng(3)
-    M, m = 6, 20
-    Cp = _random_compliance(M, rng)
-    groups = np.concatenate([np.arange(M), rng.integers(0, M, m - M)])
+def _rod_block_problem(seed, sizes=(4, 7, 5, 1)):
+    """A random compliance of points on len(sizes) rods, its rod-block operator and the dense
+    operator of the same elastic part (blocks plus resultant coupling)."""
+    rng = np.random.default_rng(seed)
+    rod = np.repeat(np.arange(len(sizes)), sizes)
+    m = len(rod)
+    C = _random_compliance(m, rng)
+    H = ca.rod_resultant_coupling(C, rod, rng.uniform(0.5, 1.5, m))
+    r3 = np.repeat(rod, 3)
+    blocks = [C[np.ix_(r3 == a, r3 == a)] for a in range(len(sizes))]
     k = rng.uniform(5e4, 2e5, m)
-    L = np.zeros((3 * m, 3 * M))
-    for i, g in enumerate(groups):
-        L[3 * i : 3 * i + 3, 3 * g : 3 * g + 3] = np.eye(3)
-    dense = ca.DenseDelassus(L @ Cp @ L.T, k)
-    grouped = ca.GroupedDelassus(Cp, groups, k)
-    r = rng.standard_normal((m, 3))
-    np.testing.assert_allclose(grouped.apply(r), dense.apply(r), rtol=1e-12)
-    for rho in (1e-6, 1e-4, 1e-2):  # each operator's own rho ladder starts from its own lambda_max estimate
-        np.testing.assert_allclose(grouped._solve(grouped._factorise(rho), r, rho), dense._solve(dense._factorise(rho), r, rho), rtol=1e-9)
-    assert grouped.lambda_max() == pytest.approx(1.05 * dense.lambda_max(), rel=0.05)  # power iteration x 1.05 vs eigh
-    assert grouped.lambda_min() == pytest.approx(dense.lambda_min())
+    return ca.RodBlockDelassus(blocks, H, rod, k), ca.DenseDelassus(ca.rod_block_compliance(blocks, H, rod), k), C, rod, rng
+
+
+def test_the_rod_block_operator_is_the_dense_one_of_its_compliance():
+    """Each rod's points with their own compliance, the rods coupled through their resultants: the
+    per-rod solves with Woodbury on the resultants, and the product, equal the dense operator's; the
+    coupling of two rods is the mean of their points' mutual compliance (areas as weights)."""
+    rods, dense, C, rod, rng = _rod_block_problem(3)
+    r = rng.standard_normal((len(rod), 3))
+    np.testing.assert_allclose(rods.apply(r), dense.apply(r), rtol=1e-12)
+    for rho in (1e-6, 1e-4, 1e-2):
+        np.testing.assert_allclose(rods._solve(rods._factorise(rho), r, rho), dense._solve(dense._factorise(rho), r, rho), rtol=1e-9)
+    assert rods.lambda_min() == pytest.approx(dense.lambda_min())
+    # equal weights: H_ab is the plain mean of C's (a, b) block per axis pair, and zero for a = b
+    H = ca.rod_resultant_coupling(C, rod, np.ones(len(rod)))
+    r3 = np.repeat(rod, 3)
+    block = C[np.ix_(r3 == 0, r3 == 2)]
+    np.testing.assert_allclose(H[0:3, 6:9], [[block[i::3, j::3].mean() for j in range(3)] for i in range(3)], rtol=1e-12)
+    np.testing.assert_array_equal(H[3:6, 3:6], 0.0)
+    with pytest.raises(ValueError, match="rod by rod"):
+        ca.RodBlockDelassus(rods.blocks, rods.H, rod[::-1], 1.0 / rods.inv_k)
 
 
 # ---------------------------------------------------------------------------------- bounded work
@@ -156,14 +169,15 @@ def test_the_iteration_bound_holds_and_the_residual_is_reported():
 
 def test_the_compiled_iteration_is_the_numpy_one():
     """One ADMM map of fem.admm_kernels against the module docstring's formulas in numpy (De Saxce's
-    correction, the cone projection, the multiplier update), dense and grouped."""
+    correction, the cone projection, the multiplier update), dense and rod by rod."""
     from fem import admm_kernels as ak
 
     G, b, n = _random_problem(7)
     n = _normals(len(b), np.random.default_rng(8))
     rng = np.random.default_rng(9)
     y, z, s = (1e-3 * rng.standard_normal(b.shape) for _ in range(3))
-    for rung in (-1, 2):
+    G_rods = _rod_block_problem(10, sizes=(9, 12, 1, 8))[0]
+    for G, rung in ((G, -1), (G, 2), (G_rods, -1), (G_rods, 2)):
         rho = G.rho(rung)
         rhs = rho * y - z - b - s
         x = G.solve(rhs, rung)

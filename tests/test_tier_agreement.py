@@ -1,7 +1,7 @@
 """The solve tiers against each other (issue 15): at 1 % of the demo load, where every tier is in its
-small-strain regime and no patch straddles the indenter's edge, reduced, linear and nonlinear agree to
-1 % on per-rod contact force and ML-layer peak stress; at full load the reduced tier's estimate of its
-own error (fem.quasistatic.patch_error_estimate) is at least the error it makes, and it says so."""
+small-strain regime, reduced, linear and nonlinear agree to 1 % on per-rod contact force and ML-layer
+peak stress; at full load, where the indenter's rim crosses the rod tips, the reduced tier (each rod's
+own point compliance, the rods coupled through their resultants) stays within 2 % of the linear tier."""
 
 from __future__ import annotations
 
@@ -50,8 +50,6 @@ def _agreement(mesh_fixture):
         ep = eps[tier]
         assert _rel(ep.rod_force_n, ref.rod_force_n) <= 0.01, tier  # per-rod contact force, every step
         assert _rel(ep.rod_peaks()["ml_von_mises_kpa"], ref.rod_peaks()["ml_von_mises_kpa"]) <= 0.01, tier
-    # no patch straddles the punch's edge: the reduced tier estimates no error of its own and says nothing
-    assert eps["reduced"].seconds["patch_error_estimate"] == 0.0
     assert not any("reduced tier" in m for m in logs)
 
 
@@ -62,32 +60,29 @@ def test_three_tiers_agree_at_one_percent_of_the_demo_load(tiny_mesh):
 
 @pytest.mark.slow
 def test_three_tiers_agree_at_one_percent_of_the_demo_load_on_the_default_sensor(default_mesh):
-    """The default sensor: its punch's rim crosses the outer rods' tips, so the reduced tier is
-    checked on its estimate there (test below), and agreement is asserted for the tiers that resolve it."""
+    """The default sensor: its punch's rim crosses the outer rods' tips."""
     scene0, _, mesh, _ = default_mesh
     scene = scene0.with_values({"load": _demo_load(0.01)})
     settings = qs.SolveSettings.from_scene(scene)
-    lin = qs.run_episode(scene, mesh, settings=dataclasses.replace(settings, tier="linear"))
-    ref = qs.run_episode(scene, mesh, settings=dataclasses.replace(settings, tier="nonlinear"))
-    assert _rel(lin.rod_force_n, ref.rod_force_n) <= 0.01
-    assert _rel(lin.rod_peaks()["ml_von_mises_kpa"], ref.rod_peaks()["ml_von_mises_kpa"]) <= 0.01
+    eps = {tier: qs.run_episode(scene, mesh, settings=dataclasses.replace(settings, tier=tier)) for tier in ("nonlinear", "linear", "reduced")}
+    ref = eps["nonlinear"]
+    for tier in ("linear", "reduced"):
+        assert _rel(eps[tier].rod_force_n, ref.rod_force_n) <= 0.01, tier
+        assert _rel(eps[tier].rod_peaks()["ml_von_mises_kpa"], ref.rod_peaks()["ml_von_mises_kpa"]) <= 0.01, tier
 
 
-@pytest.mark.parametrize("patches_per_tip", [7, 14])
-def test_the_reduced_tier_estimates_at_least_the_error_it_makes(tiny_mesh, patches_per_tip):
+def test_the_reduced_tier_follows_the_linear_tier_where_the_indenters_rim_crosses_the_tips(tiny_mesh):
     """The tiny scene's own load, a sphere pressed 1 mm and slid across the rods: its rim crosses the
-    patches, so the reduced tier is tens of percent off the linear tier; its estimate covers that and
-    the run log warns with it."""
+    tips, where rigid patches were 15-63 % off the linear tier (issue 15). Each rod's own point
+    compliance resolves the rim; the rods' coupling through their resultants and the fields from patch
+    resultants away from the loaded rod cost under 2 % (measured 0.7 %, 0.8 % on the default demo)."""
     scene, _, mesh, _ = tiny_mesh
     settings = qs.SolveSettings.from_scene(scene)
     lame, rho, _ = qs.layer_materials(scene)
     body = qs.LinearBody(mesh, lame, rho, settings.element, settings.gravity)
     lin = qs.run_episode(scene, mesh, body=body, settings=dataclasses.replace(settings, tier="linear"))
-    logs: list[str] = []
-    red = qs.run_episode(scene, mesh, body=body, settings=dataclasses.replace(settings, tier="reduced", patches_per_tip=patches_per_tip),
-                         log=logs.append)
-    measured = _rel(red.rod_peaks()["normal_force_n"], lin.rod_peaks()["normal_force_n"])
-    estimate = red.seconds["patch_error_estimate"]
-    assert measured > qs.PATCH_WARNING  # the case is one the tier gets wrong ...
-    assert estimate >= measured  # ... and it says by at least as much
-    assert any("reduced tier moves each patch rigidly" in m and f"{estimate:.0%}" in m for m in logs)
+    red = qs.run_episode(scene, mesh, body=body, settings=dataclasses.replace(settings, tier="reduced"))
+    assert lin.normal_force_n.max() > 0.1  # a load, not a touch
+    assert _rel(red.rod_force_n, lin.rod_force_n) <= 0.02
+    for measure in ("normal_force_n", "ml_von_mises_kpa", "von_mises_kpa"):
+        assert _rel(red.rod_peaks()[measure], lin.rod_peaks()[measure]) <= 0.02, measure
