@@ -224,6 +224,7 @@ class RodBlockDelassus(_Delassus):
         super().__init__()
 
     def _set_blocks(self, eig: list, Qs: list) -> None:
+        self._C_flat = np.ascontiguousarray(np.concatenate([C.ravel() for C in self.blocks]) if self.blocks else np.zeros(0))
         self._eig, self._Q = eig, Qs
         self.eigenvalues = np.concatenate(eig) if eig else np.zeros(0)
         self._Q_flat = np.ascontiguousarray(np.concatenate([Q.ravel() for Q in Qs]) if Qs else np.zeros(0))[None, :]
@@ -261,11 +262,7 @@ class RodBlockDelassus(_Delassus):
         return np.stack([np.bincount(self.rod, weights=f[:, c], minlength=self.n_rods) for c in range(3)], axis=1)
 
     def elastic(self, f):
-        out = np.empty_like(f, dtype=float)
-        for a, C in enumerate(self.blocks):
-            lo, hi = self._starts[a], self._starts[a + 1]
-            out[lo:hi] = (C @ f[lo:hi].ravel()).reshape(-1, 3)
-        return out + (self.H @ self.rod_sum(f).ravel()).reshape(-1, 3)[self.rod]
+        return admm_kernels.rod_block_product(self._C_flat, self.H, self._rod_int, self.n_rods, np.ascontiguousarray(f, dtype=float))
 
     def _block_solve(self, d_inv_all, r):
         out = np.empty_like(r)

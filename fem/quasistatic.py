@@ -479,6 +479,15 @@ def _pose(state: trajectory.IndenterState) -> Pose:
     return Pose(tuple(state.position_m), state.yaw_rad)
 
 
+def _loaded_column_runs(patch_rod: np.ndarray, loaded_columns: np.ndarray) -> list[tuple[int, int]]:
+    """Column ranges [lo, hi) of the patch responses (3 per patch) covering every loaded column:
+    the patches of each rod with a load (patches are numbered rod by rod), adjacent rods merged."""
+    loaded_patch = loaded_columns.reshape(-1, 3).any(axis=1)
+    rod_loaded = np.isin(patch_rod, np.unique(patch_rod[loaded_patch]))
+    edges = np.flatnonzero(np.diff(np.r_[0, rod_loaded.astype(np.int8), 0]))
+    return [(3 * int(a), 3 * int(b)) for a, b in zip(edges[::2], edges[1::2])]
+
+
 def _concat(arrays: list, dtype) -> np.ndarray:
     return np.concatenate(arrays).astype(dtype) if arrays else np.zeros(0, dtype=dtype)
 
@@ -786,13 +795,17 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     first, frame_of = _distinct_rows(loads.reshape(S, -1))
     U = len(first)
     if settings.tier == "reduced":
-        # (M, U) the points' loads summed per patch, zero away from the path: one product with the whole
-        # response (gathering the used columns first copies the response, three times the product's cost)
+        # (M, U) the points' loads summed per patch, zero away from the loaded rods
         patch_cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
         to_patches = sp.csr_matrix((np.ones(3 * m), (patch_cols, np.arange(3 * m))), shape=(reduced.stress_response.shape[1], 3 * m))
         Fp = (to_patches @ loads[first].reshape(U, 3 * m).T).astype(np.float32)
-        stress = (reduced.stress_response @ Fp).T + reduced.stress_gravity
-        disp = (reduced.displacement_response @ Fp).T + reduced.displacement_gravity
+        stress = np.broadcast_to(reduced.stress_gravity, (U, len(reduced.stress_gravity))).copy()
+        disp = np.broadcast_to(reduced.displacement_gravity, (U, len(reduced.displacement_gravity))).copy()
+        # the responses' columns of loaded patches only, as views (patches are numbered rod by rod:
+        # a run of loaded rods is one block of columns; gathering columns would copy the response)
+        for lo, hi in _loaded_column_runs(reduced.rod, np.any(Fp != 0, axis=1)):
+            stress += (reduced.stress_response[:, lo:hi] @ Fp[lo:hi]).T
+            disp += (reduced.displacement_response[:, lo:hi] @ Fp[lo:hi]).T
         # each rod's own tets and vertices: its points' forces as they are, not as patch resultants
         for r, (rows_s, corr_s, rows_d, corr_d) in reduced.local_responses().items():
             on_rod = np.flatnonzero(rod == r)

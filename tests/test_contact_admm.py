@@ -155,6 +155,28 @@ def test_the_rod_block_operator_is_the_dense_one_of_its_compliance():
         ca.RodBlockDelassus(rods.blocks, rods.H, rod[::-1], 1.0 / rods.inv_k)
 
 
+def test_the_solve_on_the_touching_rods_is_the_solve_on_all():
+    """Rods none of whose points reach the indenter unloaded are left out of the ADMM and checked
+    after; one that the others' loads pull into contact (through the coupling) is added. The forces
+    equal those of the solve on every point, and the left-out rods carry none."""
+    added = 0
+    for seed in range(8):
+        rods, _, _, rod, rng = _rod_block_problem(20 + seed, sizes=(6, 5, 7, 4))
+        m = len(rod)
+        n = np.tile([0.0, 0.0, 1.0], (m, 1))
+        b = 1e-6 * rng.standard_normal((m, 3))
+        b[:, 2] = np.where(rod < 2, -1e-5 * rng.uniform(0.5, 1.5, m), 1e-9)  # rods 0, 1 pressed; 2, 3 a hair away
+        f_all, *_, res_all, tol_all = ca.admm_contact(rods, b, n, MU, rtol=1e-10, max_iterations=50000)
+        f, z, rung, it, res, tol = ca.admm_on_touching_rods(rods, b, n, MU, rtol=1e-10, max_iterations=50000)
+        assert res <= tol and res_all <= tol_all
+        np.testing.assert_allclose(f, f_all, atol=1e-6 * np.abs(f_all).max())
+        pulled = np.abs(f[rod >= 2]).max() > 0
+        added += pulled
+        sigma = rods.apply(f) + b
+        assert np.all(sigma[rod >= 2, 2][f[rod >= 2, 2] == 0] >= -1e-9 * np.abs(b).max())  # no left-out point inside
+    assert added > 0  # some seed's coupling pulled a left-out rod into contact: the add path ran
+
+
 # ---------------------------------------------------------------------------------- bounded work
 def test_the_iteration_bound_holds_and_the_residual_is_reported():
     rng = np.random.default_rng(4)
