@@ -99,7 +99,7 @@ def run_loop(frames: np.ndarray, idle: np.ndarray, calibration, dllm_params, mod
 
 def write(result: LoopResult, out_dir: str | Path) -> list[Path]:
     """``classify.csv``: one row per window (time, class, probability, command, latency)."""
-    from mlsim.pipeline import atomic_bytes
+    from mlsim.io import atomic_bytes
 
     rows = ["last_frame,t_end_s,class_id,class,probability,command,latency_ms"]
     for i in range(len(result.classes)):

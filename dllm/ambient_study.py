@@ -147,7 +147,7 @@ def _recommend(rows: list[AmbientRow]) -> dict:
 
 def write(rows: list[AmbientRow], rec: dict, out_dir: Path) -> list[Path]:
     """``ambient_study.csv``, ``ambient_study.json`` and ``ambient_<setting>.png`` heatmaps."""
-    from mlsim.pipeline import atomic_bytes
+    from mlsim.io import atomic_bytes
 
     out_dir.mkdir(parents=True, exist_ok=True)
     lines = ["setting,alpha,beta,detection,false_rate,taxel_detection,touch_frames,idle_frames"]

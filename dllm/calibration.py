@@ -81,7 +81,7 @@ class Calibration:
 
     def masks(self) -> np.ndarray:
         """(N, H, W) bool: the pixels whose centre lies within R of c_n (the areas A_n)."""
-        from mlsim.render.output import disk_masks  # the camera stage's rod disks, the same rule
+        from mlsim.render.optics import disk_masks  # the camera stage's rod disks, the same rule
 
         return disk_masks(self.shape_hw[0], self.shape_hw[1], self.centres_px, self.radius_px)
 

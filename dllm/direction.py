@@ -87,7 +87,7 @@ def direction_study(scene, angles_deg, out_dir=None, cache=None, progress: bool 
 def write(rows: list[DirectionRow], out_dir: Path) -> list[Path]:
     """``direction.csv``, ``direction.json`` and ``direction.png`` (box plot of the per-taxel
     measured directions against the applied one, with the episodes' means)."""
-    from mlsim.pipeline import atomic_bytes
+    from mlsim.io import atomic_bytes
 
     out_dir.mkdir(parents=True, exist_ok=True)
     lines = ["applied_deg,measured_deg,error_deg,events,samples"] + [

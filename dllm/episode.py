@@ -93,7 +93,7 @@ def write(result: DllmEpisode, out_dir: Path) -> list[Path]:
     """``dllm_features.csv`` (a row per frame: time, event, then H, l and omega of every taxel),
     ``dllm_events.csv`` (a row per event: the taxels that fired and their summed H), the calibration
     (``dllm_calibration.json``), the taxel-to-rod table (``dllm_taxels.csv``) and ``dllm_heatmap.png``."""
-    from mlsim.pipeline import atomic_bytes
+    from mlsim.io import atomic_bytes
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

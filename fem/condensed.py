@@ -311,14 +311,14 @@ def _newton_points(C: np.ndarray, u0: np.ndarray, X: np.ndarray, shape: Indenter
     while it < max_iterations:
         if float(np.abs(r).max()) <= max(tol_m, rtol * scale):
             break
-        a = np.flatnonzero(to_unknowns(law.touching.astype(float)) > 0)
+        a = np.flatnonzero(law.touching)
         if len(a) == 0:
             du = -r
         else:
             # Newton on the active points: (I - C_aa D_a) du_a = -r_a, D block-diagonal (3 x 3 per point);
             # the others follow, du = -r + C_:a D_a du_a
             cols = (3 * a[:, None] + np.arange(3)).ravel()
-            Dblk = to_unknowns(law.D)[a]  # (na, 3, 3)
+            Dblk = law.D[a]  # (na, 3, 3)
             # C_aa blockdiag(D_a) as a dense-times-sparse product: a generic einsum over (3a, a, 3, 3)
             # costs ten times the LU that follows
             J = -np.asarray((_block_diag_csr(Dblk).T @ C[np.ix_(cols, cols)].T).T)

@@ -209,7 +209,7 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
     """Solve the scene's load on ``mesh`` with the ``nonlinear`` tier; returns a
     :class:`fem.quasistatic.Episode` (tier ``"nonlinear"``, element ``"P2P1"``)."""
     from fem.elasticity import dof_components
-    from fem.quasistatic import ContactSetup, Episode, LinearBody, SolveSettings, _bar, _check_finite, layer_materials, path_points
+    from fem.episode import ContactSetup, Episode, LinearBody, SolveSettings, _bar, _check_finite, layer_materials, path_points
 
     settings = settings or SolveSettings.from_scene(scene)
     if scene.load is None:

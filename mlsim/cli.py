@@ -75,8 +75,9 @@ def _cache(args):
 def _outputs(args, scene):
     if not args.outputs:
         return None
-    from mlsim.pipeline import OUTPUTS
+    from mlsim.stage import outputs, scene_kind
 
+    OUTPUTS = outputs(scene_kind(scene))
     names = tuple(o.strip() for part in args.outputs for o in part.split(",") if o.strip())
     bad = [n for n in names if n not in OUTPUTS]
     if bad:
@@ -185,8 +186,8 @@ def cmd_accuracy(args) -> int:
         est = f"{r.estimated_force_error:>10.2f}" if r.estimated_force_error == r.estimated_force_error else f"{'-':>10}"  # NaN: none
         print(f"{r.edge_length_mm:>8g} {r.element_order:>5} {r.tier:>9} {r.n_tets:>7} {r.per_frame_ms:>9.1f} {r.precompute_s:>7.1f} {errs} {est}"
               + ("   (reference)" if r.reference else ""))
-    print(f"(* = on the Pareto front; force est. = the tier's own estimate of its per-rod contact force error from the rods' "
-          f"bending, plus for reduced its patches' against linear)  wrote {out_dir / 'accuracy_solve.csv'}, .json, .png")
+    print(f"(* = on the Pareto front; force est. = the linear tiers' own estimate of their per-rod contact force error from the "
+          f"rods' bending)  wrote {out_dir / 'accuracy_solve.csv'}, .json, .png")
     return EXIT_OK
 
 

@@ -1,1 +1,1 @@
-"""scenes package (filled by later issues)."""
+"""Scenes shipped with mlsim: TOML files (``mlsim check scenes/mavig_default.toml``), one folder per study or sensor kind."""

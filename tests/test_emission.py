@@ -233,27 +233,27 @@ def test_light_is_linear_in_press_force(force_ramp):
 def test_loading_and_host_scale_the_light_by_the_table(force_ramp):
     """60 -> 50 wt% ZnS:Cu through the emission stage: the ratio of SPEC 1.2's table (0.6224); the
     stress history is the same (the ML layer's stiffness does not depend on the loading here)."""
-    from mlsim import pipeline
+    from mlsim.emission import stage as emission_stage
 
     scene, g, mesh, ep, P = force_ramp
     totals = {}
     for wt in (60.0, 50.0):
         s = scene.with_values({"sensor.phosphor.loading_wt_pct": wt})
-        r = pipeline._emission_run(s, {"geometry": g, "mesh": (mesh, {}), "solve": ep}, None)
+        r = emission_stage._emission_run(s, {"geometry": g, "mesh": (mesh, {}), "solve": ep}, None)
         totals[wt] = r.photons_per_s.sum()
     assert totals[50.0] / totals[60.0] == pytest.approx(0.6224, rel=1e-9)
     # SC37 host: 0.717 of PDMS (SPEC 1.2)
     s = scene.with_values({"sensor.materials.ml_layer": "PDMS"})
-    pdms = pipeline._emission_run(s, {"geometry": g, "mesh": (mesh, {}), "solve": ep}, None).photons_per_s.sum()
+    pdms = emission_stage._emission_run(s, {"geometry": g, "mesh": (mesh, {}), "solve": ep}, None).photons_per_s.sum()
     assert totals[60.0] / pdms == pytest.approx(0.717, rel=1e-9)
 
 
 def test_emission_stage_writes_table_plot_and_series(force_ramp, tmp_path):
     from mlsim.emission import output
-    from mlsim import pipeline
+    from mlsim.emission import stage as emission_stage
 
     scene, g, mesh, ep, P = force_ramp
-    r = pipeline._emission_run(scene, {"geometry": g, "mesh": (mesh, {}), "solve": ep}, None)
+    r = emission_stage._emission_run(scene, {"geometry": g, "mesh": (mesh, {}), "solve": ep}, None)
     files = output.write(r, tmp_path)
     assert (tmp_path / "emission.csv").exists() and (tmp_path / "emission.png").stat().st_size > 10_000
     table = np.genfromtxt(tmp_path / "emission.csv", delimiter=",", names=True)

@@ -12,7 +12,7 @@ __all__ = ["write_card"]
 
 
 def write_card(out_dir: str | Path, spec, base, summary: dict) -> Path:
-    from mlsim.pipeline import atomic_bytes
+    from mlsim.io import atomic_bytes
 
     out = Path(out_dir)
     attrs = store.read_attrs(out)

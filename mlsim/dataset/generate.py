@@ -31,6 +31,7 @@ import numpy as np
 
 from mlsim.dataset import store
 from mlsim.dataset.spec import DatasetSpec
+from mlsim.io import atomic_bytes
 from mlsim.interactions import ACTION_TO_4, ACTIONS, InteractionSpec, Sample, draw_people, draw_sample, frame_labels, interaction_scene
 from mlsim.scene import Scene, scene_from_dict
 
@@ -179,7 +180,7 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
         "total_wall_s": round(time.perf_counter() - t_start, 2), "spec_hash": spec.content_hash(), "mesh_key": attrs["mesh_key"],
         "versions": attrs["versions"],
     }
-    pipeline.atomic_bytes(out / "dataset.json", json.dumps(summary, indent=2).encode())
+    atomic_bytes(out / "dataset.json", json.dumps(summary, indent=2).encode())
     if summary["complete"]:
         from mlsim.dataset.card import write_card
 

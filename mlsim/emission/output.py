@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from mlsim.emission import EmissionResult, MLPatches
-from mlsim.pipeline import atomic_bytes
+from mlsim.io import atomic_bytes
 
 __all__ = ["save", "load", "write", "summary"]
 

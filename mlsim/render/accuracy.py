@@ -70,7 +70,7 @@ def render_accuracy(scene, spps=(1, 4, 16, 64), transport_spps=(16, 64), referen
     (rows, reference info) and write CSV, JSON and PNG to ``out_dir`` when given."""
     from mlsim import pipeline, render
     from mlsim.render import spectral as spectral_mod
-    from mlsim.render.output import disk_masks
+    from mlsim.render.optics import disk_masks
 
     if scene.load is None:
         raise ValueError("load: the accuracy of the render needs a scene with a [load] section")
@@ -164,7 +164,7 @@ def render_accuracy(scene, spps=(1, 4, 16, 64), transport_spps=(16, 64), referen
 
 def write(rows: list[RenderRow], info: dict, out_dir: Path, scene) -> list[Path]:
     """``accuracy_render.csv``, ``accuracy_render.json`` and ``accuracy_render.png`` in ``out_dir``."""
-    from mlsim.pipeline import atomic_bytes
+    from mlsim.io import atomic_bytes
 
     out_dir.mkdir(parents=True, exist_ok=True)
     header = ["tier", "spp", "spectral", "per_frame_ms", "precompute_s"] + [k for e in RENDER_ERRORS for k in (f"error_{e}", f"pareto_{e}")]

@@ -106,7 +106,7 @@ def write_calibration(result: CalibrationFrame, out_dir: Path) -> list[Path]:
     """``calibration_frame.png`` (the frame the DLLM calibrates on) and ``calibration_frame.json``."""
     import json
 
-    from mlsim.pipeline import atomic_bytes
+    from mlsim.io import atomic_bytes
     from mlsim.render.output import write_png
 
     out_dir = Path(out_dir)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["View", "view_of", "camera_params", "ml_channel_factors", "channel_factors_of", "inner_path_transmittance_sds", "rod_disks_px", "VIEW_MARGIN"]
+__all__ = ["View", "view_of", "camera_params", "ml_channel_factors", "channel_factors_of", "inner_path_transmittance_sds", "rod_disks_px", "VIEW_MARGIN", "disk_masks"]
 
 #: Fraction of the surface's width added on each side of the default field of view.
 VIEW_MARGIN = 0.05
@@ -130,3 +130,10 @@ def rod_disks_px(scene) -> tuple[np.ndarray, float]:
     row = (view.height_px - 1) / 2.0 - c[:, 1] * scale_px
     radius_px = (g.rod_radius_m - g.core_depth_m) * scale_px
     return np.stack([col, row], axis=1), float(radius_px)
+
+
+def disk_masks(height_px: int, width_px: int, centres_px, radius_px: float) -> np.ndarray:
+    """(R, H, W) bool: pixels whose centre lies within radius_px of each centre (column, row)."""
+    rows, cols = np.mgrid[0:height_px, 0:width_px]
+    c = np.asarray(centres_px, dtype=float)
+    return (cols[None] - c[:, 0, None, None]) ** 2 + (rows[None] - c[:, 1, None, None]) ** 2 <= radius_px**2

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mlsim.render.optics import disk_masks  # noqa: F401  (the camera stage's rod disks; defined with the view)
+
 __all__ = ["CameraFrames", "expose", "idle_frames", "write_camera", "write_render", "render_summary", "contact_sheet", "write_mp4"]
 
 
@@ -70,13 +72,6 @@ class CameraFrames:
             # the brightest rod's ambient signal over the brightest rod's ML signal (ISSUE 4: ambient vs a press)
             "ambient_to_ml_peak": peak_ambient / peak_ml if peak_ml > 0 else None,
         }
-
-
-def disk_masks(height_px: int, width_px: int, centres_px, radius_px: float) -> np.ndarray:
-    """(R, H, W) bool: pixels whose centre lies within radius_px of each centre (column, row)."""
-    rows, cols = np.mgrid[0:height_px, 0:width_px]
-    c = np.asarray(centres_px, dtype=float)
-    return (cols[None] - c[:, 0, None, None]) ** 2 + (rows[None] - c[:, 1, None, None]) ** 2 <= radius_px**2
 
 
 def noise_seed(scene) -> int:
@@ -159,7 +154,7 @@ def write_png(path: Path, rgb: np.ndarray) -> Path:
     """Lossless PNG of an RGB image (H, W, 3) uint8, written atomically."""
     import cv2
 
-    from mlsim.pipeline import atomic_bytes
+    from mlsim.io import atomic_bytes
 
     ok, data = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
     if not ok:
@@ -205,7 +200,7 @@ def contact_sheet(frames: np.ndarray, times_s: np.ndarray, max_tiles: int = 24, 
 
 
 def write_camera(result: CameraFrames, out_dir: Path) -> list[Path]:
-    from mlsim.pipeline import atomic_bytes
+    from mlsim.io import atomic_bytes
 
     out_dir = Path(out_dir)
     frame_dir = out_dir / "frames"
@@ -245,7 +240,7 @@ def write_render(result, out_dir: Path) -> list[Path]:
 
     from mlsim.plots import save_png
 
-    from mlsim.pipeline import atomic_bytes
+    from mlsim.io import atomic_bytes
 
     out_dir = Path(out_dir)
     buf = io.BytesIO()

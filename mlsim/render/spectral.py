@@ -212,10 +212,8 @@ def film_dict(spectra: RenderSpectra, width_px: int, height_px: int) -> dict:
 def spectral_twin(sensor_scene, spectra: RenderSpectra):
     """A :class:`mlsim.render.sensor_scene.SensorScene` with the same sheet (its current vertices),
     interfaces, view and integrator as ``sensor_scene``, built in ``llvm_ad_spectral`` with ``spectra``."""
-    from mlsim.render.sensor_scene import SensorScene
-
     vertices_m = np.asarray(sensor_scene.vertices_mm, dtype=float) * 1e-3
-    return SensorScene(vertices_m, sensor_scene.faces[:, ::-1], sensor_scene.view, spectra=spectra, **sensor_scene.options)
+    return type(sensor_scene)(vertices_m, sensor_scene.faces[:, ::-1], sensor_scene.view, spectra=spectra, **sensor_scene.options)
 
 
 def _frame_seed(seed: int, frame: int) -> int:
@@ -292,7 +290,7 @@ def compare_to_shortcut(reference, shortcut, centres_px, radius_px: float, *, ch
         ``rod_median_se_pct`` (the median standard error of a rod-frame's difference) and ``rod_frames``;
         ``frame_total_diff_pct`` (F lists of C).
     """
-    from mlsim.render.output import disk_masks
+    from mlsim.render.optics import disk_masks
 
     ref = np.asarray(reference, dtype=np.float64)
     cut = np.asarray(shortcut, dtype=np.float64)

@@ -1,0 +1,291 @@
+"""The FEM stages of the ML rod array (``mlsim.ml_rod_array``): the parametric geometry, the tet mesh,
+the quasi-static solve, and the verification case of SPEC 1.4. Each stage imports its heavy
+dependencies inside its functions."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from mlsim.io import atomic_bytes
+from mlsim.scene import Scene
+from mlsim.stage import RunContext, Stage, cached_precompute, npz_io, pickle_load, pickle_save, stage_key
+
+__all__ = ["GEOMETRY_FIELDS", "BODY_FIELDS", "GEOMETRY", "MESH", "SOLVE", "VERIFY_S2", "REDUCED_MODEL"]
+
+# Scene fields that shape the rod array's geometry (shared by geometry and mesh).
+GEOMETRY_FIELDS = (
+    "sensor.rows",
+    "sensor.cols",
+    "sensor.surface_size_mm",
+    "sensor.pitch_mm",
+    "sensor.rod",
+    "sensor.base",
+    "sensor.layers",
+)
+
+
+
+def _geometry_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from fem.geometry import RodArray
+
+    return RodArray.from_sensor(scene.sensor)
+
+
+def _geometry_write(g, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from fem.geometry import emitting_surface, solid_below_depth
+
+    segments = ctx.scene.fidelity.mesh.segments_per_circle
+    surfaces = {
+        "surface_outer.ply": solid_below_depth(g, 0.0, segments),
+        "surface_ml_outer.ply": solid_below_depth(g, g.absorber_m, segments),
+        "surface_ml_inner_emitting.ply": emitting_surface(g, segments),
+    }
+    files = []
+    for name, mesh in surfaces.items():
+        path = out_dir / name
+        atomic_bytes(path, mesh.export(file_type="ply"))
+        files.append(path)
+    return files
+
+
+def _geometry_summary(g) -> dict:
+    return {
+        "n_rods": g.n_rods,
+        "pitch_mm": [g.pitch_x_m * 1e3, g.pitch_y_m * 1e3],
+        "surface_mm": [g.size_x_m * 1e3, g.size_y_m * 1e3],
+        "volume_mm3": g.volume_m3() * 1e9,
+        "layer_volume_mm3": {k: v * 1e9 for k, v in g.layer_volumes_m3().items()},
+        "ml_inner_area_mm2": g.sheet_area_m2(g.core_depth_m) * 1e6,
+    }
+
+
+def _mesh_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from fem.mesh import MeshParams, build_mesh
+
+    return build_mesh(inputs["geometry"], MeshParams.from_fidelity(scene.fidelity.mesh), progress=ctx.progress)
+
+
+def _mesh_save(result, directory: Path) -> None:
+    mesh, report = result
+    mesh.save(directory / "mesh.npz")
+    (directory / "report.json").write_text(json.dumps(report, indent=2))
+
+
+def _mesh_load(directory: Path):
+    from fem.mesh import TetMesh
+
+    return TetMesh.load(directory / "mesh.npz"), json.loads((directory / "report.json").read_text())
+
+
+def _mesh_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from fem.mesh import write_vtu
+
+    mesh, report = result
+    vtu = out_dir / "mesh.vtu"
+    write_vtu(mesh, vtu)
+    rep = out_dir / "mesh_report.json"
+    atomic_bytes(rep, json.dumps(report, indent=2).encode())
+    return [vtu, rep]
+
+
+def _mesh_summary(result) -> dict:
+    _, report = result
+    keys = ("mesh_hash", "n_tets", "n_points", "n_nodes_quadratic", "volume_rel_error", "layer_volume_rel_error", "face_area_rel_error", "quality", "attempts")
+    return {k: report[k] for k in keys if k in report}
+
+
+# Scene fields that decide the linear body of the solve (materials and the solve's discretisation),
+# not the load: the ``reduced`` tier's precompute is keyed on these and the mesh.
+BODY_FIELDS = (
+    "sensor.materials",
+    "materials",
+    "fidelity.solve.element_order",
+    "fidelity.solve.formulation",
+    "fidelity.solve.contact_band_mm",
+    "fidelity.solve.patches_per_tip",
+    "fidelity.solve.patches_per_side",
+    "fidelity.solve.gravity",
+    "seed",  # the seeded k-means of the reduced tier's patches
+)
+
+
+
+_solve_save, _solve_load = npz_io("episode.npz", "fem.quasistatic:Episode")
+_reduced_save, _reduced_load = npz_io("reduced.npz", "fem.quasistatic:ReducedModel")
+
+
+def _solve_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from fem.quasistatic import run_episode
+
+    mesh, _ = inputs["mesh"]
+    reduced = None
+    if scene.fidelity.solve.tier == "reduced":
+        reduced = _cached_reduced(scene, mesh, ctx)
+    return run_episode(scene, mesh, reduced=reduced, progress=ctx.progress, log=ctx.log)
+
+
+def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
+    """The reduced tier's precompute, keyed on the mesh and the body (not the load)."""
+    from fem.quasistatic import build_reduced
+
+    # 3: each rod's point compliance and local responses (fem.contact_admm.RodBlockDelassus)
+    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(BODY_FIELDS), "version": "3"}
+    return cached_precompute(ctx, REDUCED_MODEL, payload, lambda: build_reduced(scene, mesh),
+                              "[solve] reduced tier: precomputing the contact points' compliance and responses (cached for this sensor)")
+
+
+def _solve_write(episode, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from fem.vtk_series import write_episode
+
+    files = write_episode(episode, out_dir / "solve", stem="solve")
+    files.append(_write_solve_csv(episode, out_dir / "solve_forces.csv"))
+    files.append(_plot_solve(episode, out_dir / "solve_forces.png"))
+    return files
+
+
+def _write_solve_csv(ep, path: Path) -> Path:
+    """Per frame: time, indenter pose, forces, contact iterations, stick fraction, peak von Mises."""
+    import io
+
+    import numpy as np
+
+    k = ep.frame_step
+    cols = {
+        "frame": np.arange(ep.n_frames),
+        "t_s": ep.t_s[k],
+        "indenter_x_mm": ep.pose[k, 0] * 1e3,
+        "indenter_y_mm": ep.pose[k, 1] * 1e3,
+        "indenter_z_mm": ep.pose[k, 2] * 1e3,
+        "indenter_yaw_deg": np.degrees(ep.pose[k, 3]),
+        "normal_force_n": ep.normal_force_n[k],
+        "contact_fx_n": ep.contact_force_n[k, 0],
+        "contact_fy_n": ep.contact_force_n[k, 1],
+        "contact_fz_n": ep.contact_force_n[k, 2],
+        "reaction_x_n": ep.reaction_n[k, 0],
+        "reaction_y_n": ep.reaction_n[k, 1],
+        "reaction_z_n": ep.reaction_n[k, 2],
+        "peak_von_mises_kpa": ep.von_mises[k].max(axis=1) / 1e3,
+        "contact_iterations": ep.iterations[k],
+        "stick_fraction": ep.stick_fraction[k],
+    }
+    for r in range(ep.rod_force_n.shape[1]):
+        cols[f"rod{r}_normal_force_n"] = -ep.rod_force_n[k, r, 2]
+    buf = io.StringIO()
+    buf.write(",".join(cols) + "\n")
+    np.savetxt(buf, np.column_stack(list(cols.values())), delimiter=",", fmt="%.9g")
+    atomic_bytes(path, buf.getvalue().encode())
+    return path
+
+
+def _plot_solve(ep, path: Path) -> Path:
+    """Forces and per-rod peak stress over the episode, one PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    from mlsim.plots import rod_map, save_png
+
+    k = ep.frame_step
+    t = ep.t_s[k] * 1e3
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4), constrained_layout=True)
+    ax[0].plot(t, ep.normal_force_n[k], "k-o", ms=3, label="normal (-z)")
+    ax[0].plot(t, ep.contact_force_n[k, 0], "-s", ms=3, label="x")
+    ax[0].plot(t, ep.contact_force_n[k, 1], "-^", ms=3, label="y")
+    ax[0].set(xlabel="time (ms)", ylabel="contact force on the sensor (N)", title=f"{ep.tier} tier, {ep.element}")
+    ax[0].legend()
+    rods = -ep.rod_force_n[k, :, 2]
+    im = ax[1].imshow(rods.T, aspect="auto", origin="lower", extent=(t[0], t[-1], -0.5, rods.shape[1] - 0.5), cmap="viridis")
+    fig.colorbar(im, ax=ax[1], label="normal force (N)")
+    ax[1].set(xlabel="time (ms)", ylabel="rod", title="normal force per rod")
+    ax[1].yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+    rod_map(fig, ax[2], ep.rod_peaks()["ml_von_mises_kpa"], "peak von Mises in the ML layer (kPa)", "per-rod peak ML-layer stress", "magma")
+    return save_png(fig, path)
+
+
+def _solve_summary(episode) -> dict:
+    return episode.summary()
+
+
+def _verify_s2_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from fem.verify_s2 import run
+    from mlsim.scene import resolve_material
+
+    spec = scene.verify_s2
+    materials = {name: resolve_material(name, scene.materials) for name in {spec.slab_material, spec.block_material}}
+    return run(spec, progress=ctx.progress, log=ctx.log, materials=materials)
+
+
+def _verify_s2_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from fem.verify_s2 import write
+
+    return write(result, out_dir)
+
+
+def _verify_s2_summary(result) -> dict:
+    from fem.verify_s2 import summary
+
+    return summary(result)
+
+
+# Not a stage of the plan (its need depends on the tier): the solve stage caches it through this.
+REDUCED_MODEL = Stage(name="reduced_model", doc="reduced tier precompute", reads=(), needs=(), run=lambda *a: None,
+                      save=_reduced_save, load=_reduced_load)
+
+GEOMETRY = Stage(
+    name="geometry",
+    doc="parametric rod array; writes the outer surface and the layer surfaces (PLY)",
+    reads=GEOMETRY_FIELDS,
+    needs=(),
+    run=_geometry_run,
+    write=_geometry_write,
+    summarize=_geometry_summary,
+)
+
+MESH = Stage(
+    name="mesh",
+    doc="labelled quadratic tet mesh (fTetWild), layer fractions, tagged faces; writes VTU",
+    # timeout_s and retries change how hard we try, not what an accepted mesh is.
+    reads=GEOMETRY_FIELDS
+    + (
+        "fidelity.mesh.edge_length_mm",
+        "fidelity.mesh.envelope_mm",
+        "fidelity.mesh.coarsen",
+        "fidelity.mesh.segments_per_circle",
+        "fidelity.mesh.fraction_levels",
+    ),
+    needs=("geometry",),
+    run=_mesh_run,
+    version="2",  # 2: curved (quadratic) geometry, edge-aware snapping, jittered layer fractions
+    save=_mesh_save,
+    load=_mesh_load,
+    write=_mesh_write,
+    summarize=_mesh_summary,
+)
+
+SOLVE = Stage(
+    name="solve",
+    doc="quasi-static FEM of the rods under the scene's load, per frame; writes a VTU time series, forces CSV and plot",
+    reads=BODY_FIELDS + ("load", "camera.fps", "fidelity.solve", "fidelity.mesh.edge_length_mm"),
+    needs=("mesh",),
+    version="2",  # 2: the reduced tier's contact on each rod's point compliance (issue 15)
+    run=_solve_run,
+    save=_solve_save,
+    load=_solve_load,
+    write=_solve_write,
+    summarize=_solve_summary,
+)
+
+VERIFY_S2 = Stage(
+    name="verify_s2",
+    doc="the published FEM set-up of SPEC 1.4 (rod on a slab vs steel block on a slab); profiles CSV and plot, ratios in the summary",
+    reads=("verify_s2", "materials"),
+    needs=(),
+    run=_verify_s2_run,
+    save=pickle_save,  # an internal cache of this code version (the stage key carries the version)
+    load=pickle_load,
+    write=_verify_s2_write,
+    summarize=_verify_s2_summary,
+)

@@ -1,0 +1,79 @@
+"""The emission stage of the ML rod array (``mlsim.ml_rod_array``): ZnS:Cu photons from the stress
+history, per patch of the ML sheet and camera exposure; and the sheet's patches, which the render
+and calibration stages share."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mlsim.scene import Scene
+from fem.stages import BODY_FIELDS
+from mlsim.stage import RunContext, Stage, memo, stage_key
+
+__all__ = ["EMISSION", "patches_key", "patches_of"]
+
+
+def patches_key(scene: Scene) -> tuple:
+    """What the emitting patches depend on: the mesh and the sheet's discretisation."""
+    return stage_key(scene, "mesh"), scene.fidelity.mesh.segments_per_circle, scene.fidelity.render.sheet_edge_mm * 1e-3
+
+
+def patches_of(scene: Scene, geometry, mesh):
+    """The ML sheet's emitting patches of this sensor and mesh (shared in-process)."""
+    from mlsim import emission
+
+    key = patches_key(scene)
+    return memo(("patches",) + key, lambda: emission.ml_patches(geometry, mesh, key[1], key[2]))
+
+
+def _emission_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from mlsim import emission
+    from mlsim.camera import exposure_windows_s
+    from mlsim.materials import phosphor_relative_brightness
+
+    geometry, (mesh, _), episode = inputs["geometry"], inputs["mesh"], inputs["solve"]
+    spec = scene.emission
+    patches = patches_of(scene, geometry, mesh)
+    params = emission.emission_model(spec.model).params_from(spec)
+    scale = float(scene.material("ml_layer").relative_ml_peak.value) * float(phosphor_relative_brightness(scene.sensor.phosphor.loading_wt_pct))
+    windows = exposure_windows_s(episode.n_frames, scene.camera.fps, scene.camera.exposure_ms * 1e-3)
+    return emission.photon_rates(episode.t_s, episode.stress, windows, patches, spec.model, params, spec.equivalent_stress,
+                                 spec.brightness_photons_per_m2, scale)
+
+
+def _emission_save(result, directory: Path) -> None:
+    from mlsim.emission import output
+
+    output.save(result, directory / "emission.npz")
+
+
+def _emission_load(directory: Path):
+    from mlsim.emission import output
+
+    return output.load(directory / "emission.npz")
+
+
+def _emission_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from mlsim.emission import output
+
+    return output.write(result, out_dir)
+
+
+def _emission_summary(result) -> dict:
+    from mlsim.emission import output
+
+    return output.summary(result)
+
+
+EMISSION = Stage(
+    name="emission",
+    doc="ZnS:Cu photons per second from each patch of the ML layer's inner face, per camera exposure; writes a VTU series, CSV and plot",
+    reads=BODY_FIELDS + ("sensor", "emission", "camera.fps", "camera.exposure_ms", "fidelity.mesh.segments_per_circle",
+                            "fidelity.render.sheet_edge_mm"),
+    needs=("geometry", "mesh", "solve"),
+    run=_emission_run,
+    save=_emission_save,
+    load=_emission_load,
+    write=_emission_write,
+    summarize=_emission_summary,
+)

@@ -1,0 +1,206 @@
+"""The optical stages of the ML rod array (``mlsim.ml_rod_array``): the render (Mitsuba: transport or
+path tier, with its transport matrix cached per sensor and view), the camera, and the DLLM's
+calibration frame."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fem.stages import GEOMETRY_FIELDS
+from mlsim.emission.stage import patches_key, patches_of
+from mlsim.scene import Scene
+from mlsim.stage import RunContext, Stage, cached_precompute, memo, npz_io, stage_key
+
+__all__ = ["VIEW_FIELDS", "RENDER", "CAMERA", "CALIBRATION", "TRANSPORT", "TRANSPORT_DEFORMATION_WARN_MM"]
+
+_transport_save, _transport_load = npz_io("transport.npz", "mlsim.render:TransportMatrix")
+_render_save, _render_load = npz_io("render.npz", "mlsim.render:RenderResult")
+_camera_save, _camera_load = npz_io("camera.npz", "mlsim.render.output:CameraFrames")
+_calibration_save, _calibration_load = npz_io("calibration.npz", "mlsim.render.calibration_frame:CalibrationFrame")
+
+
+def _sheet(scene: Scene, patches):
+    """The Mitsuba scene of the sheet (shared in-process; render_frames returns it to its rest shape)."""
+    from mlsim import render
+
+    return memo(("sheet", stage_key(scene, "mesh"), scene.content_hash(VIEW_FIELDS)), lambda: render.sensor_scene_for(scene, patches))
+
+
+# Scene fields that shape the renderer's view of the sheet (not the emission): the transport matrix
+# is keyed on these, so a dataset of episodes on one sensor traces it once.
+VIEW_FIELDS = GEOMETRY_FIELDS + (
+    "fidelity.mesh.segments_per_circle",
+    "fidelity.render.sheet_edge_mm",
+    "optics.elastomer_refractive_index",
+    "optics.acrylic_thickness_mm",
+    "optics.acrylic_refractive_index",
+    "optics.ml_layer_reflectance",
+    "camera.width_px",
+    "camera.height_px",
+    "camera.distance_mm",
+    "camera.focal_length_mm",
+    "camera.binning",
+    "fidelity.render.max_depth",
+    "fidelity.render.rr_depth",
+)
+
+
+#: Pure transport (``transport_max_displacement_mm = "off"``): above this sheet displacement (mm) the
+#: run says that the matrix ignores the deformation.
+TRANSPORT_DEFORMATION_WARN_MM = 0.5
+
+# What shapes the ambient lamp's image (its level over time is the camera stage's business).
+AMBIENT_IMAGE_FIELDS = ("ambient.lamp", "ambient.power_w", "ambient.height_m", "ambient.offset_mm", "ambient.efficacy_lm_per_w",
+                         "ambient.occlusion", "optics.absorber", "optics.ml_layer_transmittance")
+
+
+def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    import numpy as np
+
+    from fem.mesh import locate_points
+    from mlsim import render
+
+    em, episode = inputs["emission"], inputs["solve"]
+    sheet = _sheet(scene, em.patches)
+    radiance = render.radiance_of(em.photons_per_s, em.patches.area_m2)
+    spec = scene.fidelity.render
+    transport = None
+    # where each sheet vertex sits in the mesh: of the sensor, not the episode (shared in-process)
+    located = memo(("patches_in_mesh",) + patches_key(scene),
+                    lambda: locate_points(episode.mesh_points, episode.mesh_tets, np.asarray(em.patches.vertices_m, dtype=float)))
+    vertices = render.deformed_vertices(episode, em.patches.vertices_m, located)
+    if spec.tier == "transport":
+        transport = _cached_transport(scene, sheet, ctx)
+        limit_mm = spec.path_above_mm
+        result = render.render_frames(sheet, radiance, "transport", transport=transport, spp=spec.spp, seed=scene.seed, vertices_m=vertices,
+                                      path_above_m=None if limit_mm is None else limit_mm * 1e-3, progress=ctx.progress)
+        result.info.update(transport_spp=transport.spp, transport_nnz=int(transport.matrix.nnz),
+                           transport_dropped_fraction=transport.dropped_fraction, transport_trace_s=transport.seconds)
+        moved_mm = result.info["sheet_displacement_mm"]
+        if result.info["path_frames"]:
+            ctx.log(f"[render] {len(result.info['path_frames'])} frames in which the sheet moved more than {limit_mm:g} mm were path-traced "
+                    f"at {spec.spp} spp (the matrix is of the rest shape; fidelity.render.transport_max_displacement_mm)")
+        elif limit_mm is None and max(moved_mm) > TRANSPORT_DEFORMATION_WARN_MM:
+            f = max(range(len(moved_mm)), key=moved_mm.__getitem__)
+            ctx.log(f"[render] note: the transport tier renders the rest shape; the sheet moves up to {moved_mm[f]:.2f} mm (frame {f}), "
+                    "which changes rods' intensities by up to tens of % (mlsim accuracy SCENE --stage render)")
+    else:
+        result = render.render_frames(sheet, radiance, "path", spp=spec.spp, seed=scene.seed, vertices_m=vertices, progress=ctx.progress)
+    if scene.ambient.lamp != "none":
+        result.ambient, result.info["ambient"] = _ambient_image(scene, em.patches, sheet, transport)
+    return result
+
+
+def _ambient_image(scene: Scene, patches, sheet, transport):
+    """The ambient lamp's leak (mlsim.render.ambient) rendered once on the rest shape, at lamp level 1."""
+    from mlsim import render
+    from mlsim.render import ambient
+
+    a = scene.ambient
+    leak = ambient.leak_through_layers(scene, patches, sheet, lamp=a.lamp, power_w=a.power_w, lamp_m=ambient.lamp_position_m(scene),
+                                       absorber=scene.optics.absorber, efficacy_lm_per_w=a.efficacy_lm_per_w, occlusion=a.occlusion)
+    spec = scene.fidelity.render
+    image = render.render_still(sheet, render.radiance_of(leak.photons_per_s, patches.area_m2), spec.tier, spp=spec.spp,
+                                seed=scene.seed ^ 0xA3B1E7, transport=transport)
+    top = patches.normals[:, 2] > 0.99
+    info = {"radiant_power_w": leak.radiant_power_w, "shaded_fraction": leak.shaded_fraction,
+            "irradiance_on_top_w_m2": float(leak.irradiance_w_m2[top].mean()) if top.any() else 0.0,
+            "leaked_photons_per_s": float(leak.photons_per_s.sum())}
+    return image, info
+
+
+def _cached_transport(scene: Scene, sheet, ctx: "RunContext"):
+    """The transport matrix, keyed on this sensor and view (not the load)."""
+    from mlsim.render import trace_transport
+
+    spec = scene.fidelity.render
+    payload = {"view": scene.content_hash(VIEW_FIELDS), "spp": spec.transport_spp, "drop": spec.transport_drop, "seed": scene.seed, "version": "1"}
+    return cached_precompute(
+        ctx, TRANSPORT, payload,
+        lambda: trace_transport(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, progress=ctx.progress),
+        f"[render] transport tier: tracing the light-transport matrix at {spec.transport_spp} spp (cached for this sensor and view)")
+
+
+def _render_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from mlsim.render import output
+
+    return output.write_render(result, out_dir)
+
+
+def _render_summary(result) -> dict:
+    from mlsim.render import output
+
+    return output.render_summary(result)
+
+
+def _calibration_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from mlsim.render.calibration_frame import calibration_frame
+
+    geometry, (mesh, _) = inputs["geometry"], inputs["mesh"]
+    patches = patches_of(scene, geometry, mesh)
+    sheet = _sheet(scene, patches)
+    transport = _cached_transport(scene, sheet, ctx) if scene.fidelity.render.tier == "transport" else None
+    return calibration_frame(scene, patches, sheet, transport)
+
+
+def _calibration_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from mlsim.render.calibration_frame import write_calibration
+
+    return write_calibration(result, out_dir)
+
+
+def _camera_run(scene: Scene, inputs: dict, ctx: "RunContext"):
+    from mlsim.render import output
+
+    return output.expose(scene, inputs["render"], inputs["emission"])
+
+
+def _camera_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
+    from mlsim.render import output
+
+    return output.write_camera(result, out_dir)
+
+
+def _camera_summary(result) -> dict:
+    return result.summary()
+
+
+
+TRANSPORT = Stage(name="transport_matrix", doc="transport tier precompute", reads=(), needs=(), run=lambda *a: None,
+                  save=_transport_save, load=_transport_load)
+
+RENDER = Stage(
+    name="render",
+    doc="radiance of the ML light at the camera's lens per frame (Mitsuba: transport or path tier); writes radiance.npz and a PNG",
+    reads=VIEW_FIELDS + ("fidelity.render", "seed") + AMBIENT_IMAGE_FIELDS,
+    needs=("emission", "solve"),
+    run=_render_run,
+    save=_render_save,
+    load=_render_load,
+    write=_render_write,
+    summarize=_render_summary,
+)
+
+CAMERA = Stage(
+    name="camera",
+    doc="8-bit RGB camera frames (radiometry, spectra, noise, ADC); writes an MP4, PNG frames, a contact sheet and a per-frame CSV",
+    reads=("camera", "optics", "sensor", "ambient", "seed", "noise_seed"),
+    needs=("render", "emission"),
+    run=_camera_run,
+    save=_camera_save,
+    load=_camera_load,
+    write=_camera_write,
+    summarize=_camera_summary,
+)
+
+CALIBRATION = Stage(
+    name="calibration",
+    doc="the DLLM's calibration frame: the sensor without its absorber under the white calibration lamp, auto-exposed; writes a PNG and JSON",
+    reads=VIEW_FIELDS + ("fidelity.render", "seed", "calibration", "camera", "optics", "ambient.occlusion"),
+    needs=("geometry", "mesh"),
+    run=_calibration_run,
+    save=_calibration_save,
+    load=_calibration_load,
+    write=_calibration_write,
+    summarize=lambda result: dict(result.info),
+)
