@@ -376,46 +376,47 @@ def _block_diag_csr(blocks: np.ndarray) -> sp.csr_matrix:
 
 def solve_path(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case: str = "contact step", max_depth: int = 8,
                max_penetration_m: float | None = None, max_jump_m: float | None = None, **kw):
-    """:func:`solve_points` from ``pose_old`` to ``pose``; the move is split in halves (recursively,
-    ``max_depth`` times: down to 1/256 of it), each solved from the last, when
+    """:func:`solve_points` from ``pose_old`` to ``pose``; the move is split in halves
+    (:func:`fem.continuation.solve_with_halving`, ``max_depth`` times: down to 1/256 of it), each
+    solved from the last, when
 
     - the indenter at ``pose`` would reach deeper than ``max_jump_m`` into the points where they were
       (before they respond): a larger jump can carry a thin indenter past a point, which the penalty
       then pushes out of the far side (tunnelling that no converged state shows);
-    - Newton fails, or a point ends deeper in the indenter than ``max_penetration_m``.
+    - the solve fails, or a point ends deeper in the indenter than ``max_penetration_m`` (at the
+      last depth: a :class:`SolverError`).
 
     Returns (u, law, info) with the total iterations and the number of cuts in info."""
-    if max_jump_m is not None and max_depth > 0:
-        gap_before = indenter_gap(shape, pose, X + state.u)
-        if -float(gap_before.min()) > max_jump_m:
-            return _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, max_depth, max_penetration_m, max_jump_m, **kw)
-    try:
-        u, law, info = solve_points(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case=case, **kw)
+    from fem.continuation import solve_with_halving
+
+    guess = kw.pop("guess", None)
+
+    def step(p_old, p, st, whole):
+        u, law, info = solve_points(C, u0, X, shape, p, p_old, st, friction, k_n, k_t, case=case, guess=guess if whole else None, **kw)
         info.setdefault("cuts", 0)
+        return u, law, info
+
+    def jumps(p, st):
+        return max_jump_m is not None and -float(indenter_gap(shape, p, X + st.u).min()) > max_jump_m
+
+    def too_deep(result):
+        _, law, _ = result
         depth = float(np.max(law.fn / k_n)) if law.fn.size else 0.0
         if max_penetration_m is None or depth <= max_penetration_m:
-            return u, law, info
-        # A point sank deeper than a penalty ever lets it: the indenter jumped past it in one step
-        # (tunnelling into a rod it should have pushed aside). Smaller steps.
-        if max_depth <= 0:
-            raise SolverError(f"{case}: penetration {depth * 1e6:.1f} um exceeds {max_penetration_m * 1e6:.1f} um even at 1/256 of the step")
-    except SolverError:
-        if max_depth <= 0:
-            raise
-    return _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, max_depth, max_penetration_m, max_jump_m, **kw)
+            return None
+        # a point sank deeper than a penalty ever lets it: the indenter jumped past it in one step
+        # (tunnelling into a rod it should have pushed aside); smaller steps
+        return f"{case}: penetration {depth * 1e6:.1f} um exceeds {max_penetration_m * 1e6:.1f} um even at 1/256 of the step"
 
+    def chain(first, second):
+        (_, _, i1), (u2, law2, i2) = first, second
+        info = {"iterations": i1["iterations"] + i2["iterations"], "cuts": 1 + i1["cuts"] + i2["cuts"], "residuals_m": i2["residuals_m"], "f": i2["f"]}
+        if "admm" in i2:  # the worse half's convergence
+            info["admm"] = max(i1["admm"], i2["admm"], key=lambda a: a.residual_n / max(a.tolerance_n, 1e-300))
+        return u2, law2, info
 
-def _halves(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case, max_depth, max_penetration_m, max_jump_m, **kw):
-    """:func:`solve_path` over the two halves of the move, the second from the first's state."""
-    kw.pop("guess", None)  # a starting guess for the whole move is not one for its halves
-    mid = Pose(tuple(0.5 * (np.asarray(pose.position_m) + np.asarray(pose_old.position_m))), 0.5 * (pose.yaw_rad + pose_old.yaw_rad))
-    u1, law1, i1 = solve_path(C, u0, X, shape, mid, pose_old, state, friction, k_n, k_t, case, max_depth - 1, max_penetration_m, max_jump_m, **kw)
-    state1 = PointState(u1.copy(), law1.f_t.copy())
-    u2, law2, i2 = solve_path(C, u0, X, shape, pose, mid, state1, friction, k_n, k_t, case, max_depth - 1, max_penetration_m, max_jump_m, **kw)
-    info = {"iterations": i1["iterations"] + i2["iterations"], "cuts": 1 + i1["cuts"] + i2["cuts"], "residuals_m": i2["residuals_m"], "f": i2["f"]}
-    if "admm" in i2:  # the worse half's convergence
-        info["admm"] = max(i1["admm"], i2["admm"], key=lambda a: a.residual_n / max(a.tolerance_n, 1e-300))
-    return u2, law2, info
+    return solve_with_halving(step, pose_old, pose, state, max_depth, jumps=jumps, too_deep=too_deep, deep_at_the_end="raise",
+                              next_start=lambda r: PointState(r[0].copy(), r[1].f_t.copy()), chain=chain)
 
 
 def normal_force(law: _Law) -> float:

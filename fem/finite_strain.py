@@ -184,25 +184,29 @@ class _Problem:
                           f"(start {history[0]:.3e} N, tolerance {self.rtol * scale:.3e} N)")
 
     def path(self, x0, pose, pose_old, state, case, depth=8):
-        """:meth:`newton` from ``pose_old`` to ``pose``, halving the move on failure or tunnelling."""
-        if depth > 0:
-            gap_before = indenter_gap(self.shape, pose, self.points.X + state.u)
-            jump = -float(gap_before.min()) > self.max_jump_m
-        else:
-            jump = False
-        if not jump:
-            try:
-                x, law, it = self.newton(x0, pose, pose_old, state, case)
-                deep = float(np.max(law.fn / self.k_n)) if law.fn.size else 0.0
-                if deep <= self.max_penetration_m or depth <= 0:
-                    return x, law
-            except SolverError:
-                if depth <= 0:
-                    raise
-        mid = Pose(tuple(0.5 * (np.asarray(pose.position_m) + np.asarray(pose_old.position_m))), 0.5 * (pose.yaw_rad + pose_old.yaw_rad))
-        x1, law1 = self.path(x0, mid, pose_old, state, case, depth - 1)
-        state1 = condensed.PointState(self.point_u(x1), law1.f_t.copy())
-        return self.path(x1, pose, mid, state1, case, depth - 1)
+        """:meth:`newton` from ``pose_old`` to ``pose``, halving the move on failure or tunnelling
+        (:func:`fem.continuation.solve_with_halving`)."""
+        from fem.continuation import solve_with_halving
+
+        def step(p_old, p, start, whole):
+            x_start, st = start
+            x, law, _ = self.newton(x_start, p, p_old, st, case)
+            return x, law
+
+        def jumps(p, start):
+            return -float(indenter_gap(self.shape, p, self.points.X + start[1].u).min()) > self.max_jump_m
+
+        def too_deep(result):
+            law = result[1]
+            deep = float(np.max(law.fn / self.k_n)) if law.fn.size else 0.0
+            return None if deep <= self.max_penetration_m else f"{case}: penetration {deep * 1e6:.1f} um"
+
+        def next_start(result):
+            x1, law1 = result
+            return x1, condensed.PointState(self.point_u(x1), law1.f_t.copy())
+
+        return solve_with_halving(step, pose_old, pose, (x0, state), depth, jumps=jumps, too_deep=too_deep, deep_at_the_end="return",
+                                  next_start=next_start)
 
 
 def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):

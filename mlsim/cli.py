@@ -88,6 +88,7 @@ def _outputs(args, scene):
 def cmd_check(args) -> int:
     scene = _load(args)
     from fem.geometry import RodArray
+    from mlsim.stage import outputs as outputs_of
 
     print(f"# {args.scene}: valid scene '{scene.name}' (hash {scene.content_hash()[:12]})")
     flat = scene.to_dotted()
@@ -95,6 +96,9 @@ def cmd_check(args) -> int:
     for key, value in flat.items():
         unit = _unit(key)
         print(f"{key:<{width}} = {value!r:<24} {unit}".rstrip())
+    if scene.kind != "ml_rod_array":
+        print(f"\n# sensor kind {scene.kind!r}: outputs {', '.join(outputs_of(scene.kind))}")
+        return EXIT_OK
     g = RodArray.from_sensor(scene.sensor)
     print("\n# derived")
     print(f"rods                     = {g.n_rods} ({scene.sensor.rows} x {scene.sensor.cols})")

@@ -20,7 +20,7 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, SerializeAsAny, Strict, ValidationError, field_validator, model_serializer, model_validator
 
 from mlsim.errors import Problem, SceneError
 from mlsim.materials import MATERIAL_PROPERTIES, SHIPPED_MATERIALS, Material, Quantity
@@ -90,6 +90,8 @@ class SensorSpec(_Model):
     is the size over the count) or ``pitch_mm`` (then the surface is the pitch times the count).
     """
 
+    # the sensor kind (mlsim.stage): this model is the "ml_rod_array" kind's [sensor] section
+    kind: Literal["ml_rod_array"] = "ml_rod_array"
     rows: Annotated[int, Strict(), Field(ge=1, le=64)] = 5
     cols: Annotated[int, Strict(), Field(ge=1, le=64)] = 5
     surface_size_mm: Pos | None = None
@@ -106,6 +108,15 @@ class SensorSpec(_Model):
     def _default_surface(cls, data: Any) -> Any:
         if isinstance(data, dict) and data.get("surface_size_mm") is None and data.get("pitch_mm") is None:
             data = {**data, "surface_size_mm": DEFAULT_SURFACE_SIZE_MM}
+        return data
+
+    @model_serializer(mode="wrap")
+    def _default_kind_unwritten(self, handler):
+        # the default kind is not written out, so that the scene hashes (and every stage's cache key)
+        # of the scenes that predate sensor kinds stay as they were
+        data = handler(self)
+        if isinstance(data, dict) and data.get("kind") == "ml_rod_array":
+            data.pop("kind")
         return data
 
     @property
@@ -556,7 +567,9 @@ class Scene(_Model):
     # A dataset varies it per episode and keeps `seed`, which also seeds the sensor's precomputes
     # (the reduced tier's patches, the transport matrix, the calibration frame), so they are shared.
     noise_seed: Annotated[int, Strict(), Field(ge=0, lt=2**63)] | None = None
-    sensor: SensorSpec = SensorSpec()
+    # the [sensor] section of the scene's sensor kind (``sensor.kind``, default "ml_rod_array": the
+    # SensorSpec above; another kind's model comes from its registration, mlsim.stage.register_kind)
+    sensor: SerializeAsAny[SensorSpec] = SensorSpec()
     materials: dict[str, MaterialOverride] = {}
     load: LoadSpec | None = None
     emission: EmissionSpec = EmissionSpec()
@@ -569,6 +582,25 @@ class Scene(_Model):
     fidelity: FidelitySpec = FidelitySpec()
     verify_s2: VerifyS2Spec | None = None
     outputs: tuple[str, ...] = ("mesh",)
+
+    @field_validator("sensor", mode="wrap")
+    @classmethod
+    def _sensor_of_its_kind(cls, value: Any, handler):
+        kind = value.get("kind", "ml_rod_array") if isinstance(value, dict) else getattr(value, "kind", "ml_rod_array")
+        if kind == "ml_rod_array":
+            return handler(value)
+        from mlsim.stage import kind as registered_kind
+
+        try:
+            model = registered_kind(str(kind)).sensor_model
+        except KeyError as exc:
+            raise ValueError(str(exc.args[0])) from None
+        return value if isinstance(value, model) else model.model_validate(value)
+
+    @property
+    def kind(self) -> str:
+        """The sensor kind (``sensor.kind``)."""
+        return getattr(self.sensor, "kind", "ml_rod_array")
 
     # -- access ---------------------------------------------------------------------------------
     def get(self, path: str):
@@ -661,7 +693,16 @@ def scene_from_dict(data: dict, source: str | None = None) -> Scene:
 
 
 def check_consistency(scene: Scene) -> list[Problem]:
-    """Checks that involve several fields (each field alone is already valid)."""
+    """Checks that involve several fields (each field alone is already valid): the ML rod array's
+    below; another sensor kind's by its registered ``check`` (mlsim.stage.SensorKind), and for every
+    kind that its ``outputs`` are stages of the kind."""
+    if scene.kind != "ml_rod_array":
+        from mlsim.stage import kind, outputs
+
+        problems = [Problem(f"outputs[{i}]", out, f"unknown output; choose from: {', '.join(outputs(scene.kind))}")
+                    for i, out in enumerate(scene.outputs) if out not in outputs(scene.kind)]
+        check = kind(scene.kind).check
+        return problems + [Problem(*p) for p in (check(scene) if check is not None else [])]
     problems: list[Problem] = []
     s = scene.sensor
     if s.surface_size_mm is not None and s.pitch_mm is not None:

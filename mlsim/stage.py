@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["Stage", "SensorKind", "RunContext", "BUILTIN_KINDS", "DEFAULT_KIND", "register_kind", "kind", "kinds", "stages", "outputs",
+__all__ = ["Stage", "SensorKind", "RunContext", "BUILTIN_KINDS", "DEFAULT_KIND", "register_kind", "unregister_kind", "kind", "kinds", "stages", "outputs",
            "scene_kind", "stage_key", "memo", "cached_precompute", "npz_io", "pickle_save", "pickle_load"]
 
 
@@ -95,6 +95,11 @@ def register_kind(name: str, sensor_model: type, stages, check: Callable[[Any], 
     return _KINDS[name]
 
 
+def unregister_kind(name: str) -> None:
+    """Forget a registered kind (a built-in one registers itself again when next asked for)."""
+    _KINDS.pop(name, None)
+
+
 def kinds() -> tuple[str, ...]:
     """The names of the known kinds (built-in and registered)."""
     return tuple(dict.fromkeys([*BUILTIN_KINDS, *_KINDS]))
@@ -120,6 +125,7 @@ def outputs(kind_name: str = DEFAULT_KIND) -> tuple[str, ...]:
 
 
 def scene_kind(scene) -> str:
+    """A scene's sensor kind (``sensor.kind``)."""
     return getattr(scene.sensor, "kind", DEFAULT_KIND)
 
 

@@ -136,6 +136,20 @@ def test_reduced_tier_agrees_with_linear_on_a_uniform_press(tiny_mesh, body):
     np.testing.assert_allclose(red.reaction_n + red.contact_force_n, 0.0, atol=1e-6 * np.abs(red.contact_force_n).max())
 
 
+@pytest.mark.parametrize("tier", ["linear", "reduced"])
+def test_the_newton_contact_solver_gives_the_admm_answer(tiny_mesh, body, tier):
+    """The two contact solvers of the linear tiers solve one contact law: a press and a slide with
+    friction (stick, then slip), per-rod contact force within 0.5 % of the largest."""
+    scene0, _, mesh, _ = tiny_mesh
+    scene = _scene(scene0, [{"kind": "press", "depth_mm": 0.8, "speed_mm_s": 8.0},
+                            {"kind": "slide", "distance_mm": 0.6, "speed_mm_s": 6.0, "direction_deg": 30.0}], friction=0.5)
+    eps = {solver: qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier=tier, gravity=False, contact_solver=solver))
+           for solver in ("admm", "newton")}
+    ref = eps["admm"].rod_force_n
+    assert np.abs(ref).max() > 0.05
+    assert np.abs(eps["newton"].rod_force_n - ref).max() <= 5e-3 * np.abs(ref).max()
+
+
 def _stiff_case(case: str) -> dict:
     from mlsim.materials import SHIPPED_MATERIALS
 
