@@ -43,6 +43,15 @@ def _project_point(v0, v1, v2, n0, n1, n2, mu):
 
 
 @njit(cache=True)
+def _rod_end(rod, start):
+    """One past the last point of the rod that starts at ``start`` (the points come rod by rod)."""
+    end = start
+    while end < rod.shape[0] and rod[end] == rod[start]:
+        end += 1
+    return end
+
+
+@njit(cache=True)
 def _solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
     """(G + rho I)^-1 r, r (m, 3). EIGEN (:class:`fem.contact_admm.DenseDelassus`): Q diag(d_inv) Q^T r,
     ``inverse`` = Q, d_inv = 1 / (lambda + rho). ROD_BLOCKS (:class:`fem.contact_admm.RodBlockDelassus`,
@@ -61,10 +70,7 @@ def _solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
     start = 0
     offset = 0
     while start < m:
-        a = rod[start]
-        end = start
-        while end < m and rod[end] == a:
-            end += 1
+        a, end = rod[start], _rod_end(rod, start)
         lo, hi = 3 * start, 3 * end
         nb = hi - lo
         Q = Qs[offset : offset + nb * nb].reshape(nb, nb)
@@ -298,10 +304,7 @@ def rod_block_product(C_flat, H, rod, n_rods, f):
     start = 0
     offset = 0
     while start < m:
-        a = rod[start]
-        end = start
-        while end < m and rod[end] == a:
-            end += 1
+        a, end = rod[start], _rod_end(rod, start)
         lo, hi = 3 * start, 3 * end
         nb = hi - lo
         out[lo:hi] = C_flat[offset : offset + nb * nb].reshape(nb, nb) @ flat[lo:hi]

@@ -209,15 +209,12 @@ class ReducedModel:
         for s in range(0, n_cols, block):
             cs = col_order[s : s + block]
             Xs = body.solve(Wd[:, cs].toarray())
-            WtX = Wd.T @ Xs
+            WtX, SX, DX = Wd.T @ Xs, body.S @ Xs, Xs[vdofs]
             for r in np.unique(rod3[cs]):
                 on = rod3[cs] == r
                 rows_r = np.flatnonzero(rod3 == r)
                 blocks[int(r)][np.ix_(place[rows_r], place[cs[on]])] = WtX[rows_r][:, on]
-            SX, DX = body.S @ Xs, Xs[vdofs]
-            for r in np.unique(rod3[cs]):
                 if r in local:
-                    on = rod3[cs] == r
                     local[r][0][:, place[cs[on]]] = SX[local_rows[r][0]][:, on]
                     local[r][1][:, place[cs[on]]] = DX[local_rows[r][1]][:, on]
             Pb = P[cs]  # (b, 3 M): these columns' shares of their patches

@@ -75,9 +75,9 @@ def _cache(args):
 def _outputs(args, scene):
     if not args.outputs:
         return None
-    from mlsim.stage import outputs, scene_kind
+    from mlsim.stage import outputs
 
-    OUTPUTS = outputs(scene_kind(scene))
+    OUTPUTS = outputs(scene.kind)
     names = tuple(o.strip() for part in args.outputs for o in part.split(",") if o.strip())
     bad = [n for n in names if n not in OUTPUTS]
     if bad:

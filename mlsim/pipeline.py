@@ -38,7 +38,7 @@ __all__ = ["Stage", "PlanStep", "Cache", "plan", "run", "stage_key", "default_ca
 
 def stages_of(scene: Scene) -> dict[str, Stage]:
     """The stages of the scene's sensor kind, by name, each after the stages it needs."""
-    return registry.stages(registry.scene_kind(scene))
+    return registry.stages(scene.kind)
 
 
 def __getattr__(name: str):
@@ -110,7 +110,7 @@ def plan(scene: Scene, cache: Cache | None = None, outputs: tuple[str, ...] | No
     stages = stages_of(scene)
     for name in outputs:
         if name not in stages:
-            raise KeyError(f"unknown output {name!r}; choose from: {', '.join(registry.outputs(registry.scene_kind(scene)))}")
+            raise KeyError(f"unknown output {name!r}; choose from: {', '.join(registry.outputs(scene.kind))}")
     memo: dict = {}
     actions: dict[str, str] = {}
 

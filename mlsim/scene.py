@@ -762,9 +762,9 @@ def check_consistency(scene: Scene) -> list[Problem]:
                     problems.append(
                         Problem(f"materials.{name}.{needed}", None, "a new material needs young_modulus_pa, poisson_ratio and density_kg_m3")
                     )
-    from mlsim.stage import outputs, scene_kind  # the kind's registered stages are the products
+    from mlsim.stage import outputs  # the kind's registered stages are the products
 
-    OUTPUTS = outputs(scene_kind(scene))
+    OUTPUTS = outputs(scene.kind)
     for i, out in enumerate(scene.outputs):
         if out not in OUTPUTS:
             problems.append(Problem(f"outputs[{i}]", out, f"unknown output; choose from: {', '.join(OUTPUTS)}"))

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 __all__ = ["Stage", "SensorKind", "RunContext", "BUILTIN_KINDS", "DEFAULT_KIND", "register_kind", "unregister_kind", "kind", "kinds", "stages", "outputs",
-           "scene_kind", "stage_key", "memo", "cached_precompute", "npz_io", "pickle_save", "pickle_load"]
+           "stage_key", "memo", "cached_precompute", "npz_io", "pickle_save", "pickle_load"]
 
 
 @dataclass(frozen=True)
@@ -124,18 +124,13 @@ def outputs(kind_name: str = DEFAULT_KIND) -> tuple[str, ...]:
     return kind(kind_name).outputs
 
 
-def scene_kind(scene) -> str:
-    """A scene's sensor kind (``sensor.kind``)."""
-    return getattr(scene.sensor, "kind", DEFAULT_KIND)
-
-
 def stage_key(scene, name: str, _memo: dict | None = None) -> str:
     """Content hash of what a stage's result depends on: its code version, the scene fields it
     reads and, recursively, the keys of the stages it needs."""
     cache = {} if _memo is None else _memo
     if name in cache:
         return cache[name]
-    stage = stages(scene_kind(scene))[name]
+    stage = stages(scene.kind)[name]
     payload = {
         "stage": name,
         "version": stage.version,
