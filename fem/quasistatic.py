@@ -342,9 +342,16 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         if second_order:
             t_k = time.perf_counter()
             sections = _rod_sections(scene, mesh, rod, setup.tip_z_m)
-            # a point's force moves the rods as its patch's resultant does (the fields' approximation)
+            # the sections' response to each point's force as the vertices see it: its patch's resultant
+            # response plus, on its own rod, its own correction (the displacement field's rule below)
             cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
-            A = np.asarray(sections.O @ reduced.displacement_response[:, cols], dtype=float)
+            O = sections.O.tocsc()
+            A = np.asarray(O @ reduced.displacement_response[:, cols], dtype=float)
+            for r, (_, _, rows_d, corr_d) in reduced.local_responses().items():
+                on_rod = np.flatnonzero(rod == r)
+                if len(on_rod):
+                    local = np.searchsorted(np.flatnonzero(reduced.point_rod == r), keep[on_rod])
+                    A[:, (3 * on_rod[:, None] + np.arange(3)).ravel()] += O[:, rows_d] @ corr_d[:, (3 * local[:, None] + np.arange(3)).ravel()]
             kinematics = rod_kinematics.RodKinematics(sections, A, sections.O @ reduced.displacement_gravity.astype(float), X, rod)
             timings["precompute_rod_kinematics"] = time.perf_counter() - t_k
             timings["precompute"] += timings["precompute_rod_kinematics"]
