@@ -1,2 +1,3 @@
-"""The sibling sensors (AnySkin, the compliant limb shell, the plantar sole): each a sensor kind of its own (``sensor.kind``),
-registered with :func:`mlsim.stage.register_kind` (issues 19-21; none yet)."""
+"""The sibling sensors, each a sensor kind of its own (``sensor.kind``), registered with
+:func:`mlsim.stage.register_kind` and listed in :data:`mlsim.stage.BUILTIN_KINDS`: ``cls`` (the compliant limb
+shell, :mod:`other_sensors.cls`), ``plantar_sole`` (:mod:`other_sensors.sole`); AnySkin is issue 19."""

@@ -1,0 +1,76 @@
+"""CLS pose estimation speed on 2 kHz data (SPEC 3 reference: 7.02 iterations on average, ~0.125 ms per
+estimate in C on a 2.5 GHz laptop CPU). Not a test: prints figures.
+
+    OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 .venv/bin/python benchmarks/bench_cls.py [--seconds 10] [--shape general]
+
+Prints (1) the whole series through :func:`estimate_poses` (compiled loop: motion detection + LM with
+warm starts), as time per LM estimate, and (2) the median of single estimates timed one by one from
+Python (this includes numba's dispatch overhead of a few microseconds), and the mean iterations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from other_sensors.cls.estimator import AT_REST, LmSettings, _args, _lm, estimate_poses, usable  # noqa: E402
+from other_sensors.cls.ltv import default_layout  # noqa: E402
+from other_sensors.cls.shell import ADC_RANGE_V, measure, trajectory  # noqa: E402
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--shape", default="general")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+
+    rate, rest_s = 2000.0, 0.25
+    layout, settings = default_layout(), LmSettings()
+    t = np.arange(int(args.seconds * rate)) / rate
+    poses = trajectory(args.shape, t, rest_s, layout.rest_p[2], 10.0, 6.0, 6.0, 0.5, np.random.default_rng([args.seed, 0]))
+    volts, _ = measure(poses, layout, 0.7, np.random.default_rng([args.seed, 1]))
+    n_rest = int(rest_s * rate)
+
+    estimate_poses(volts[:n_rest + 50], layout, settings, n_rest, ADC_RANGE_V)  # compile
+    runs = []
+    for _ in range(5):
+        start = time.perf_counter()
+        est = estimate_poses(volts, layout, settings, n_rest, ADC_RANGE_V)
+        runs.append(time.perf_counter() - start)
+    fitted = est.status != AT_REST
+    n_fit = int(fitted.sum())
+    per_estimate_ms = 1e3 * min(runs) / max(n_fit, 1)
+
+    # single estimates, each warm-started from the previous sample's estimate, timed one by one
+    ok = usable(volts, ADC_RANGE_V)
+    extra = _args(layout, settings)
+    out = np.empty(3)
+    idx = np.flatnonzero(fitted)
+    times, iters = np.empty(len(idx)), np.empty(len(idx))
+    for j, s in enumerate(idx):
+        mu0 = est.poses[s - 1] if s > 0 and np.all(np.isfinite(est.poses[s - 1])) else np.array([0.0, layout.rest_p[2], 0.0])
+        vm, okk = np.where(ok[s], volts[s], 0.0), ok[s]
+        start = time.perf_counter_ns()
+        it, _ = _lm(vm, okk, mu0, *extra, out)
+        times[j] = (time.perf_counter_ns() - start) * 1e-6
+        iters[j] = it
+    err = est.poses[fitted] - poses[fitted]
+    print(f"CLS estimator, {args.shape} trajectory, {args.seconds:g} s at {rate:g} Hz, {layout.n_pairs} pairs, noise 0.7 mV RMS")
+    print(f"  LM estimates: {n_fit} of {len(t)} samples (the rest were at rest: no estimate)")
+    print(f"  series (compiled loop): {per_estimate_ms:.4f} ms per estimate (best of 5)")
+    print(f"  single calls from Python: median {np.median(times):.4f} ms per estimate (p90 {np.percentile(times, 90):.4f} ms)")
+    print(f"  mean iterations: {est.iterations[fitted].mean():.2f} (max {est.iterations.max()})")
+    print(f"  RMS error: y {np.sqrt(np.mean(err[:, 0] ** 2)):.4f} mm, z {np.sqrt(np.mean(err[:, 1] ** 2)):.4f} mm, "
+          f"rx {np.degrees(np.sqrt(np.mean(err[:, 2] ** 2))):.4f} deg")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,130 @@
+"""The ``[sensor]`` section of a CLS scene (``sensor.kind = "cls"``): pairs, foam, trajectory, noise, estimator.
+
+Defaults are SPEC 3's values where it gives them and the documented choices of :mod:`ltv`,
+:mod:`shell` and :mod:`estimator` where it does not.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from other_sensors.cls import ltv, shell
+
+__all__ = ["ClsSensor", "PairsSpec", "FoamSpec", "TrajectorySpec", "NoiseSpec", "CalibrationSpec", "EstimatorSpec", "check"]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class PairsSpec(_Model):
+    """The line of LED / LTV pairs along y; every pair has the same seven coefficients."""
+
+    n: int = Field(5, ge=3, le=16)
+    pitch_mm: float = Field(ltv.PAIR_PITCH_MM, gt=0, le=200)
+    stagger_mm: float = Field(ltv.LED_STAGGER_MM, ge=0, le=50)
+    gap_mm: float = Field(ltv.REST_GAP_MM, gt=15, lt=60)
+    # the nominal (datasheet) coefficients c1..c7 (V mm^2, mm, mm^2, -, -, -, V), the same for every pair
+    coefficients: tuple[float, float, float, float, float, float, float] = tuple(float(c) for c in ltv.DEFAULT_COEFFS)
+    # part-to-part spread: each pair's true coefficients are the nominal ones times (1 + spread N(0, 1))
+    # (c2, nominally 0, gets spread x 20 mm), drawn from the scene's seed. A choice: 3 % is a typical
+    # LED intensity / LTV responsivity tolerance after binning; it makes the nominal model mm-wrong.
+    coefficient_spread: float = Field(0.03, ge=0, le=0.5)
+
+
+class FoamSpec(_Model):
+    """The three foam pillars (SPEC 3: 1.5 in tall, 1.5 in^2 section) and their stiffening law."""
+
+    height_mm: float = Field(shell.PILLAR_HEIGHT_MM, gt=0, le=200)
+    section_mm2: float = Field(shell.PILLAR_SECTION_MM2, gt=0)
+    young_kpa: float = Field(shell.FOAM_E0_KPA, gt=0)
+    stiffening_strain: float = Field(shell.FOAM_STIFFENING_STRAIN, gt=0)
+    pillar_y_mm: tuple[float, float, float] = shell.PILLAR_Y_MM
+
+
+class TrajectorySpec(_Model):
+    """The shell's motion: ``rest_s`` of rest, then ``shape``; voltages at ``rate_hz``, reference poses at ``reference_rate_hz``."""
+
+    shape: Literal["rest", "compression", "shear", "rotation", "general"] = "general"
+    duration_s: float = Field(2.0, gt=0, le=600)
+    rest_s: float = Field(0.25, gt=0)
+    rate_hz: float = Field(2000.0, gt=0, le=100_000)
+    reference_rate_hz: float = Field(80.0, gt=0)
+    compression_mm: float = Field(10.0, ge=0)
+    shear_mm: float = Field(6.0, ge=0)
+    rotation_deg: float = Field(6.0, ge=0, le=30)
+    frequency_hz: float = Field(0.5, gt=0)
+
+
+class NoiseSpec(_Model):
+    """White Gaussian noise per sample and pair, then the ADC's quantisation and rails."""
+
+    rms_mv: float = Field(0.7, ge=0)
+    adc_bits: int = Field(shell.ADC_BITS, ge=8, le=24)
+    adc_range_v: float = Field(shell.ADC_RANGE_V, gt=0)
+
+
+class CalibrationSpec(_Model):
+    """Batch calibration (SPEC 3): a general-motion trajectory of measured poses (``duration_s`` at the
+    reference rate ``rate_hz``, the trajectory section's amplitudes), then LM over each pair's coefficients."""
+
+    duration_s: float = Field(37.0, gt=0, le=3600)
+    rate_hz: float = Field(80.0, gt=0, le=100_000)
+    tau: float = Field(1.0 / 40.0, gt=0)
+    theta_max_deg: float = Field(40.0, gt=0, lt=90)
+    r_min_mm: float = Field(20.0, gt=0)
+    v_max_v: float = Field(4.5, gt=0)
+
+
+class EstimatorSpec(_Model):
+    """The LM estimator and the motion detector (SPEC 3 values); ``coefficients``: which the estimator
+    uses: the batch-calibrated ones (default), the nominal ones, or the true ones (an oracle, for
+    separating the calibration's error from the estimator's)."""
+
+    coefficients: Literal["calibrated", "nominal", "true"] = "calibrated"
+
+    tau: float = Field(1.0 / 70.0, gt=0)
+    tolerance: float = Field(1e-4, gt=0)
+    max_iterations: int = Field(50, ge=1, le=10_000)
+    r_min_mm: float = Field(15.0, gt=0)
+    r_max_mm: float = Field(60.0, gt=0)
+    theta_max_deg: float = Field(45.0, gt=0, lt=90)
+    lambda0: float = Field(1e-3, gt=0)
+    motion_threshold_mv: float = Field(5.0, gt=0)
+
+
+class ClsSensor(_Model):
+    """The compliant limb sensor of SPEC 3 (planar prototype: y, z, rx)."""
+
+    kind: Literal["cls"] = "cls"
+    pairs: PairsSpec = PairsSpec()
+    foam: FoamSpec = FoamSpec()
+    trajectory: TrajectorySpec = TrajectorySpec()
+    noise: NoiseSpec = NoiseSpec()
+    calibration: CalibrationSpec = CalibrationSpec()
+    estimator: EstimatorSpec = EstimatorSpec()
+
+
+def check(scene) -> list:
+    """Consistency beyond the schema: [(dotted field, value, what is valid)]."""
+    s = scene.sensor
+    problems = []
+    tr, est = s.trajectory, s.estimator
+    if tr.rest_s >= tr.duration_s:
+        problems.append(("sensor.trajectory.rest_s", tr.rest_s, f"must be < sensor.trajectory.duration_s = {tr.duration_s}"))
+    if tr.rest_s * tr.rate_hz < 1:
+        problems.append(("sensor.trajectory.rest_s", tr.rest_s, "must hold at least one sample at sensor.trajectory.rate_hz"))
+    if tr.reference_rate_hz > tr.rate_hz:
+        problems.append(("sensor.trajectory.reference_rate_hz", tr.reference_rate_hz, f"must be <= sensor.trajectory.rate_hz = {tr.rate_hz}"))
+    if est.r_min_mm >= est.r_max_mm:
+        problems.append(("sensor.estimator.r_min_mm", est.r_min_mm, f"must be < sensor.estimator.r_max_mm = {est.r_max_mm}"))
+    if tr.compression_mm >= s.pairs.gap_mm - est.r_min_mm:
+        problems.append(("sensor.trajectory.compression_mm", tr.compression_mm,
+                         f"must be < sensor.pairs.gap_mm - sensor.estimator.r_min_mm = {s.pairs.gap_mm - est.r_min_mm:g}"))
+    if s.calibration.v_max_v > s.noise.adc_range_v:
+        problems.append(("sensor.calibration.v_max_v", s.calibration.v_max_v, f"must be <= sensor.noise.adc_range_v = {s.noise.adc_range_v}"))
+    if tr.compression_mm >= s.foam.height_mm:
+        problems.append(("sensor.trajectory.compression_mm", tr.compression_mm, f"must be < sensor.foam.height_mm = {s.foam.height_mm}"))
+    return problems
