@@ -1,0 +1,207 @@
+"""The ``[sensor]`` section of a plantar-sole scene (``sensor.kind = "plantar_sole"``), validated at the door.
+
+Scene lengths are in mm and angles in degrees (their units in the names); the models convert to
+SI for the physics (:meth:`CellsSpec.layout`, the primitives' ``to_terrain``, :meth:`FootSpec.pose`).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from .cells import CELL_AREA_M2, DEFAULT_ROW_COUNTS, SENSOR_RADIUS_FRACTION
+from .feasibility import CLEARANCE_M, EPS_AREA, EPS_FORCE_KG, EPS_TORQUE_NM
+
+__all__ = ["SoleSensor", "CellsSpec", "FoundationSpec", "ProximitySpec", "TerrainSpec", "FootSpec", "FeasibilitySpec",
+           "BalanceSpec", "FOUNDATION_STIFFNESS_N_M3", "PROXIMITY_RANGE_MM", "EARLY_CONTACT_LOAD_N", "FORCE_NOISE_N"]
+
+# --- documented defaults (the SPEC does not give them) -------------------------------------------
+# Winkler modulus of the skin's foam and cover. A choice: the 86 kg robot standing on one whole sole
+# (844 N over 290 cm^2 of cells) sinks 0.29 mm, and 250 N on a 4 cm x 4 cm obstacle sinks 1.6 mm:
+# millimetres, as a few-millimetre skin allows.
+FOUNDATION_STIFFNESS_N_M3 = 1.0e8
+# Proximity (pre-touch) range. A choice: 10 mm, under the 20 mm obstacles of scenes/sole, so that the
+# pre-touch polygon outlines an obstacle rather than the floor around it.
+PROXIMITY_RANGE_MM = 10.0
+# Normal load on the foot at early contact. A choice: 250 N, about 30 % of the 86 kg robot's weight
+# (844 N), as the swing foot lands before the weight is transferred to it.
+EARLY_CONTACT_LOAD_N = 250.0
+# Noise of one force sensor. A choice: 0.02 N rms (a capacitive load cell's), far under eps_F (1.47 N).
+FORCE_NOISE_N = 0.02
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class CellsSpec(_Model):
+    """The skin cells (:mod:`other_sensors.sole.cells`)."""
+
+    row_counts: tuple[Annotated[int, Field(ge=1, le=30)], ...] = DEFAULT_ROW_COUNTS
+    cell_area_mm2: float = Field(CELL_AREA_M2 * 1e6, gt=0.0, le=1e4)
+    sensor_radius_fraction: float = Field(SENSOR_RADIUS_FRACTION, gt=0.0, lt=0.866)
+    quadrature: int = Field(6, ge=1, le=24)  # sub-triangles per hexagon edge: 6 n^2 samples per cell
+    force_noise_n: float = Field(FORCE_NOISE_N, ge=0.0, le=100.0)
+
+    @field_validator("row_counts")
+    @classmethod
+    def _interlocking(cls, value):
+        if not value:
+            raise ValueError("give one or more rows")
+        if any((a - b) % 2 == 0 for a, b in zip(value, value[1:])):
+            raise ValueError("neighbouring rows must differ in parity (odd, even, odd, ...) for the hexagons to interlock")
+        return value
+
+    def layout(self):
+        from .cells import sole_layout
+
+        return sole_layout(self.row_counts, self.cell_area_mm2 * 1e-6, self.sensor_radius_fraction)
+
+
+class FoundationSpec(_Model):
+    """The Winkler layer (:mod:`other_sensors.sole.contact`)."""
+
+    stiffness_n_m3: float = Field(FOUNDATION_STIFFNESS_N_M3, gt=0.0, le=1e13)
+
+
+class ProximitySpec(_Model):
+    range_mm: float = Field(PROXIMITY_RANGE_MM, gt=0.0, le=500.0)
+
+
+class FlatSpec(_Model):
+    shape: Literal["flat"] = "flat"
+    top_mm: float = 0.0
+
+    def to_terrain(self):
+        from .terrain import Flat
+
+        return Flat(self.top_mm * 1e-3)
+
+
+class BoxSpec(_Model):
+    shape: Literal["box"] = "box"
+    center_mm: tuple[float, float]
+    size_mm: tuple[Annotated[float, Field(gt=0.0)], Annotated[float, Field(gt=0.0)]]
+    top_mm: float
+    yaw_deg: float = Field(0.0, ge=-180.0, le=180.0)
+
+    def to_terrain(self):
+        from .terrain import Box
+
+        return Box(tuple(np.multiply(self.center_mm, 1e-3)), tuple(np.multiply(self.size_mm, 1e-3)), self.top_mm * 1e-3,
+                   np.radians(self.yaw_deg))
+
+
+class SphereSpec(_Model):
+    shape: Literal["sphere"] = "sphere"
+    center_mm: tuple[float, float, float]
+    radius_mm: float = Field(gt=0.0)
+
+    def to_terrain(self):
+        from .terrain import Sphere
+
+        return Sphere(tuple(np.multiply(self.center_mm, 1e-3)), self.radius_mm * 1e-3)
+
+
+class StepSpec(_Model):
+    shape: Literal["step"] = "step"
+    point_mm: tuple[float, float]
+    direction_deg: float = Field(0.0, ge=-180.0, le=180.0)  # the upper side's direction in the ground plane
+    top_mm: float
+
+    def to_terrain(self):
+        from .terrain import Step
+
+        return Step(tuple(np.multiply(self.point_mm, 1e-3)), np.radians(self.direction_deg), self.top_mm * 1e-3)
+
+
+class HeightFieldSpec(_Model):
+    shape: Literal["height_field"] = "height_field"
+    origin_mm: tuple[float, float]
+    spacing_mm: float = Field(gt=0.0)
+    heights_mm: tuple[tuple[float, ...], ...]  # rows along y, columns along x
+
+    @field_validator("heights_mm")
+    @classmethod
+    def _grid(cls, value):
+        if len(value) < 2 or len({len(r) for r in value}) != 1 or len(value[0]) < 2:
+            raise ValueError("give at least 2 rows of equal length >= 2")
+        return value
+
+    def to_terrain(self):
+        from .terrain import HeightField
+
+        return HeightField(tuple(np.multiply(self.origin_mm, 1e-3)), self.spacing_mm * 1e-3, np.asarray(self.heights_mm) * 1e-3)
+
+
+Primitive = Annotated[Union[FlatSpec, BoxSpec, SphereSpec, StepSpec, HeightFieldSpec], Field(discriminator="shape")]
+
+
+class TerrainSpec(_Model):
+    """The terrain: the union of its primitives (:mod:`other_sensors.sole.terrain`); default a flat floor."""
+
+    primitives: tuple[Primitive, ...] = (FlatSpec(),)
+
+    def to_terrain(self) -> tuple:
+        return tuple(p.to_terrain() for p in self.primitives)
+
+
+class FootSpec(_Model):
+    """The foot's pose: the sole frame's origin (under the ankle) at (x, y) in the world, its angles,
+    and its height, given (``height_mm``) or found so that the terrain carries ``load_n``."""
+
+    x_mm: float = 0.0
+    y_mm: float = 0.0
+    roll_deg: float = Field(0.0, ge=-30.0, le=30.0)
+    pitch_deg: float = Field(0.0, ge=-30.0, le=30.0)
+    yaw_deg: float = Field(0.0, ge=-180.0, le=180.0)
+    load_n: float = Field(EARLY_CONTACT_LOAD_N, gt=0.0, le=1e5)
+    height_mm: float | None = None  # None: from load_n; given: load_n is not used
+
+    def pose(self, height_m: float = 0.0):
+        from .contact import FootPose
+
+        return FootPose((self.x_mm * 1e-3, self.y_mm * 1e-3, height_m), np.radians(self.roll_deg), np.radians(self.pitch_deg),
+                        np.radians(self.yaw_deg))
+
+
+class FeasibilitySpec(_Model):
+    """The step-feasibility rules (:mod:`other_sensors.sole.feasibility`)."""
+
+    eps_force_kg: float = Field(EPS_FORCE_KG, gt=0.0, le=100.0)
+    eps_torque_nm: float = Field(EPS_TORQUE_NM, gt=0.0, le=1e4)
+    eps_area: float = Field(EPS_AREA, gt=0.0, le=1.0)
+    clearance_mm: float = Field(CLEARANCE_M * 1e3, ge=0.0, le=1000.0)
+
+
+class BalanceSpec(_Model):
+    """The CP-ZMP balance loop on the LIPM (:mod:`other_sensors.sole.balance`)."""
+
+    mass_kg: float = Field(86.0, gt=0.0, le=1000.0)
+    z_com_m: float = Field(0.8, gt=0.0, le=5.0)
+    k_xi: float = Field(1.5, ge=0.0, le=100.0)
+    k_f: float = Field(0.5, ge=0.0, le=100.0)
+    k_x: float = Field(1.0, ge=0.0, le=100.0)
+    rate_hz: float = Field(250.0, gt=0.0, le=10000.0)
+    duration_s: float = Field(4.0, gt=0.0, le=60.0)
+    # The push: a choice (SPEC 4 gives none): 80 N along x for 0.2 s at 0.5 s moves the ZMP ~7.5 cm,
+    # inside the 10 cm of the reference experiment and short of the sole's edge.
+    push_n: float = Field(80.0, ge=-5000.0, le=5000.0)
+    push_start_s: float = Field(0.5, ge=0.0)
+    push_duration_s: float = Field(0.2, gt=0.0, le=10.0)
+    zmp_source: Literal["skin", "ft"] = "skin"
+
+
+class SoleSensor(_Model):
+    """A humanoid's sole covered by hexagonal skin cells (SPEC 4)."""
+
+    kind: Literal["plantar_sole"] = "plantar_sole"
+    cells: CellsSpec = CellsSpec()
+    foundation: FoundationSpec = FoundationSpec()
+    proximity: ProximitySpec = ProximitySpec()
+    terrain: TerrainSpec = TerrainSpec()
+    foot: FootSpec = FootSpec()
+    feasibility: FeasibilitySpec = FeasibilitySpec()
+    balance: BalanceSpec = BalanceSpec()
