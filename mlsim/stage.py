@@ -75,7 +75,7 @@ class SensorKind:
 
 #: The built-in kinds and the modules that register them (imported on first use).
 BUILTIN_KINDS: dict[str, str] = {"ml_rod_array": "mlsim.ml_rod_array", "cls": "other_sensors.cls.kind",
-                                 "plantar_sole": "other_sensors.sole.kind"}
+                                 "plantar_sole": "other_sensors.sole.kind", "anyskin": "other_sensors.anyskin.kind"}
 DEFAULT_KIND = "ml_rod_array"
 _KINDS: dict[str, SensorKind] = {}
 

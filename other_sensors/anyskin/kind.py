@@ -1,0 +1,34 @@
+"""The AnySkin helmet as a sensor kind (``sensor.kind = "anyskin"``): its schema, checks and stages."""
+
+from __future__ import annotations
+
+from mlsim.stage import register_kind
+
+from .schema import MAX_ANGULAR_RATE_DEG_S, AnySkinSensor
+from .stages import CONTACT, SIGNALS
+
+__all__ = ["AnySkinSensor", "KIND"]
+
+
+def _check(scene) -> list:
+    """Cross-field rules the schema's per-field ranges cannot state."""
+    from .helmet import peak_angular_rate_deg_s
+
+    s, problems = scene.sensor, []
+    tr = s.trajectory
+    rate = peak_angular_rate_deg_s(tr.gait_hz, [tr.roll_amp_deg, tr.pitch_amp_deg, tr.yaw_amp_deg])
+    if rate > MAX_ANGULAR_RATE_DEG_S:
+        problems.append(("sensor.trajectory.gait_hz", tr.gait_hz,
+                         f"with these amplitudes the head turns at up to {rate:.0f} deg/s, over SPEC 2's "
+                         f"{MAX_ANGULAR_RATE_DEG_S:.0f}; lower gait_hz or the *_amp_deg"))
+    if s.magnetometers.pitch_mm >= s.skin.side_mm / 2:
+        problems.append(("sensor.magnetometers.pitch_mm", s.magnetometers.pitch_mm,
+                         f"the outer chips must lie under the skin: make it < sensor.skin.side_mm / 2 = {s.skin.side_mm / 2:g}"))
+    if tr.duration_s * s.magnetometers.rate_hz < 2:
+        problems.append(("sensor.trajectory.duration_s", tr.duration_s, "give at least two samples"))
+    return problems
+
+
+KIND = register_kind("anyskin", AnySkinSensor, [SIGNALS, CONTACT], check=_check)
+"""The Head-On helmet of SPEC 2: four AnySkin magnetic skins in an X on a quadruped's pitched helmet face,
+pushed against a force plate while walking; ``other_sensors.anyskin.kind`` registers the ``anyskin`` kind."""
