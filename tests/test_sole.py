@@ -199,9 +199,11 @@ def test_the_four_obstacles_give_the_expected_decisions(name):
     if skin:  # the sidestep clears the polygon's width plus the clearance, away from it
         low, high = est.bounding_box(a.polygon)
         assert abs(a.sidestep_skin) == pytest.approx(high[1] - low[1] + 0.03)
-    # pre-touch: the cells whose centre is within the proximity range (10 mm) of the terrain
+    # pre-touch: the cells whose face comes within the proximity range (10 mm) of the terrain; every
+    # touching cell sees what it touches, so the pre-touch polygon holds the support polygon
     near = contact.gaps < 0.01
     assert est.polygon_area(a.pretouch) == pytest.approx(est.polygon_area(est.support_polygon(LAYOUT.corners, near)))
+    assert np.all(near[a.active]) and est.polygon_area(a.pretouch) >= est.polygon_area(a.polygon) * (1 - 1e-12)
     if name == "large_flat":
         assert near.all() and est.polygon_area(a.pretouch) == pytest.approx(a.sole_area)
 

@@ -71,7 +71,7 @@ class SoleContact:
 
     sensor_forces (N, 3) N: each cell's three normal-force readings. cell_forces (N,) N: their sums.
     wrench (6,): the ankle F/T reading (Fx, Fy, Fz N, Mx, My, Mz N m) about the sole frame's origin.
-    gaps (N,) m: each cell's proximity reading (vertical gap to the terrain, 0 in contact, inf with
+    gaps (N,) m: each cell's proximity reading (the least vertical gap from its face to the terrain, 0 in contact, inf with
     no terrain below). pose: the foot's pose.
     """
 
@@ -119,12 +119,17 @@ def cell_sampling(layout: SoleLayout, subdivisions: int) -> CellSampling:
     return _SAMPLING_MEMO[key][1]
 
 
-def _sample_forces(sampling: CellSampling, pose: FootPose, primitives, stiffness: float) -> np.ndarray:
-    """Normal force (N, M) N at each quadrature point."""
+def _sample_clearance(sampling: CellSampling, pose: FootPose, primitives) -> np.ndarray:
+    """Height (N, M) m of each quadrature point above the terrain below it (negative: sunk in)."""
     world = pose.to_world(sampling.points)  # (N, M, 3)
     h = terrain_height(primitives, world[..., :2].reshape(-1, 2)).reshape(world.shape[:2])
-    depth = np.maximum(h - world[..., 2], 0.0)
-    return stiffness * depth * sampling.weights
+    return world[..., 2] - h
+
+
+def _sample_forces(sampling: CellSampling, pose: FootPose, primitives, stiffness: float, clearance: np.ndarray | None = None) -> np.ndarray:
+    """Normal force (N, M) N at each quadrature point."""
+    clearance = _sample_clearance(sampling, pose, primitives) if clearance is None else clearance
+    return stiffness * np.maximum(-clearance, 0.0) * sampling.weights
 
 
 def sole_contact(layout: SoleLayout, pose: FootPose, primitives, stiffness_n_m3: float, subdivisions: int = 6) -> SoleContact:
@@ -136,13 +141,17 @@ def sole_contact(layout: SoleLayout, pose: FootPose, primitives, stiffness_n_m3:
     if not stiffness_n_m3 > 0:
         raise ValueError(f"sensor.foundation.stiffness_n_m3 = {stiffness_n_m3}: must be > 0")
     sampling = cell_sampling(layout, subdivisions)
-    f = _sample_forces(sampling, pose, primitives, stiffness_n_m3)  # (N, M)
+    clearance = _sample_clearance(sampling, pose, primitives)  # (N, M)
+    f = _sample_forces(sampling, pose, primitives, stiffness_n_m3, clearance)  # (N, M)
     sensor_forces = f @ sampling.split  # (N, 3)
     x, y = sampling.points[..., 0], sampling.points[..., 1]
     fz = float(f.sum())
     wrench = np.array([0.0, 0.0, fz, float((y * f).sum()), float(-(x * f).sum()), 0.0])
-    centres = pose.to_world(layout.centres)
-    gaps = np.maximum(centres[:, 2] - terrain_height(primitives, centres[:, :2]), 0.0)
+    # proximity: the nearest terrain under the cell's face. The sensor's field of view is taken as the
+    # cell's footprint looking straight down (a simplification of its cone); read at the centre alone,
+    # a cell half over a small obstacle touched it without seeing it, and the pre-touch polygon came
+    # out smaller than the support polygon
+    gaps = np.maximum(clearance.min(axis=1), 0.0)
     return SoleContact(sensor_forces, sensor_forces.sum(axis=1), wrench, gaps, pose)
 
 

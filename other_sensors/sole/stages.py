@@ -49,6 +49,7 @@ def _summarize_contact(result) -> dict:
 CONTACT = Stage(
     name="sole_contact", doc="cell force readings, proximity gaps and the ankle wrench of the foot on the terrain",
     reads=("sensor.cells", "sensor.foundation", "sensor.terrain", "sensor.foot", "seed"), needs=(), run=_contact,
+    version="2",  # 2: proximity is the least gap under the cell's face, not at its centre
     save=pickle_save, load=pickle_load, write=_write_contact, summarize=_summarize_contact)
 
 
