@@ -23,7 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from fem.nonlinear import SolverError
+from mlsim.errors import SolverError
 
 __all__ = ["Factorised", "factorise", "available_backends"]
 

@@ -42,7 +42,7 @@ Modelling choices (not given by SPEC 1.4):
   unit force are solved once and superposed) and ``nonlinear`` (the mixed neo-Hookean solid of
   :mod:`fem.nonlinear`, dead loads, gravity first and then the force continued through all the
   forces with a secant predictor, on a coarser mesh: :data:`NONLINEAR_EDGE_MM`). The Newton loop is
-  this module's own (:class:`_Newton`): :func:`fem.nonlinear.solve_nonlinear` backtracks on the
+  the full-step Newton of :mod:`fem.nonlinear` (:class:`fem.nonlinear.FullStepNewton`): :func:`fem.nonlinear.solve_nonlinear` backtracks on the
   residual norm, which a tilting steel block defeats from the first increment. A force at which
   Newton fails is recorded as not converged: NaN in the outputs and a message, never a silent
   number; the larger forces are then not attempted (their load path passes through it).
@@ -68,6 +68,7 @@ from skfem import FacetBasis, Functional, LinearForm
 
 from fem.elasticity import Discretisation, _per_qp, assemble, discretise, dof_components, skfem_mesh, split
 from fem.materials.linear_elastic import lame_parameters
+from fem.nonlinear import FullStepNewton
 from mlsim.errors import MeshingError, MlsimError
 
 __all__ = [
@@ -127,7 +128,7 @@ NONLINEAR_MIN_STEP_N = 1e-3
 NONLINEAR_EDGE_MM = 1.0
 #: Newton iterations per load step: near the bonded edges, where det F approaches 0, Newton's
 #: convergence is slow but steady (measured: 18 iterations for the 1 N step of the 1 mm block),
-#: and a genuinely diverging step stops earlier (:class:`_Newton`).
+#: and a genuinely diverging step stops earlier (:class:`fem.nonlinear.FullStepNewton`).
 NONLINEAR_MAX_ITERATIONS = 30
 #: A converged nonlinear state whose det F falls below this at a quadrature point is flagged: an
 #: element crushed near a sharp bonded edge (PDMS at nu 0.49 is nearly incompressible), so the
@@ -639,86 +640,6 @@ def solve_linear_tier(s: CaseSystem, forces_n) -> tuple[np.ndarray, dict]:
     }
 
 
-@dataclass
-class _Newton:
-    """Newton's method on R_int(x) = f_ext for one load level: full steps, refusing inverted states.
-
-    :func:`fem.nonlinear.solve_nonlinear` backtracks on the residual norm, which fails here from
-    the first increment: the linearised step of a steel block that tilts stretches the steel by
-    ~theta^2 / 2, and the steel's 77 GPa turns that into residual forces 1e3-1e5 times the load
-    (measured at 50 mN on a 1 mm mesh: 0.009 N before the step, 373 N after it; the residual of a
-    damped step falls only as alpha^2, so no damping passes). The full step is nevertheless
-    right: with the tangent at the tilted state the next step removes the stretch and Newton
-    converges quadratically (0.18, 8e-4, 2e-4, 5e-9 N). Scaling the residual row by row does not
-    help (the load acts on the steel too), nor does the simplified-Newton monotonicity test (the
-    tangent at the untilted state turns the stretch forces into a large PDMS correction). So: full
-    steps, halved only while a trial state inverts an element (det F <= 0, as :mod:`fem.nonlinear`
-    refuses). The correction does not shrink monotonically (it alternates while the stretch is
-    corrected), so the increment fails only when it grows to 1e3 times its smallest value or
-    after ``max_iterations``; the caller then halves the load increment. Converged when the
-    displacement correction is below ``xtol`` of the displacement (then taken in full). Same
-    residual and tangent as :mod:`fem.nonlinear` (:func:`fem.nonlinear.residual_and_tangent`);
-    factorised by :func:`fem.linsolve.factorise` (PARDISO where present) with one step of
-    iterative refinement.
-    """
-
-    s: "CaseSystem"
-    xtol: float = 1e-9
-    max_iterations: int = NONLINEAR_MAX_ITERATIONS
-    min_damping: float = 1.0 / 64
-
-    def __post_init__(self):
-        self.free = np.setdiff1d(np.arange(self.s.d.n_dofs), self.s.fixed)
-        self.u_rows = self.free < self.s.d.n_u  # free rows that are displacements
-
-    def _norm_u(self, v: np.ndarray) -> float:
-        return float(np.linalg.norm(v[self.u_rows]))
-
-    def solve(self, x: np.ndarray, f_ext: np.ndarray) -> tuple[bool, np.ndarray, int, str]:
-        """(converged, state, iterations, why not) from the start state x for the load f_ext (n,)."""
-        from fem.linsolve import factorise
-        from fem.nonlinear import SolverError, residual_and_tangent
-
-        s, free = self.s, self.free
-        x = x.copy()
-        try:
-            r, K = residual_and_tangent(s.d, x, s.lam, s.mu)
-        except FloatingPointError as exc:
-            return False, x, 0, f"start state: {exc}"
-        smallest = np.inf
-        for it in range(1, self.max_iterations + 1):
-            g = (r - f_ext)[free]
-            Kf = K[free][:, free]
-            try:
-                lu = factorise(Kf, definite=False)
-                dx = -lu.solve(g)
-                dx -= lu.solve(Kf @ dx + g)  # one refinement step: the steel rows cost the factor digits
-            except SolverError as exc:
-                return False, x, it, f"tangent: {exc}"
-            if not np.all(np.isfinite(dx)):
-                return False, x, it, "the Newton step is not finite"
-            ndx = self._norm_u(dx)
-            if ndx <= self.xtol * self._norm_u(x[free] + dx):  # converged: the residual is at round-off
-                x[free] += dx
-                return True, x, it, ""
-            smallest = min(smallest, ndx)
-            if ndx > 1e3 * smallest:
-                return False, x, it, f"the Newton correction diverges ({smallest:.3e} -> {ndx:.3e} m)"
-            alpha = 1.0
-            while True:
-                trial = x.copy()
-                trial[free] += alpha * dx
-                try:
-                    r, K = residual_and_tangent(s.d, trial, s.lam, s.mu)
-                    break
-                except FloatingPointError:  # an inverted element: shorten the step
-                    alpha *= 0.5
-                    if alpha < self.min_damping:
-                        return False, x, it, f"every step down to {self.min_damping:g} of Newton's inverts an element"
-            x = trial
-        return False, x, self.max_iterations, f"no convergence in {self.max_iterations} iterations (last |du| = {ndx:.3e} m)"
-
-
 def _load_path(
     s: CaseSystem,
     x0: np.ndarray,
@@ -745,7 +666,7 @@ def _load_path(
     iterations, cuts, the smallest step taken."""
     from fem.nonlinear import SolverError
 
-    newton = _Newton(s, max_iterations=max_iterations)
+    newton = FullStepNewton(s.d, s.lam, s.mu, s.fixed, max_iterations=max_iterations)
     history = [] if history is None else history
     max_step = abs(lam1 - lam0) if max_step is None else max_step
     x, lam, step = x0.copy(), lam0, min(first_step, max_step)
@@ -799,7 +720,7 @@ def solve_nonlinear_tier(
     the face). Gravity is applied first (one ramp, its own increments), then the force is continued
     from 0 through the forces in increasing order (:func:`_load_path`, a secant predictor across the
     whole path), the first step to each force 1 / ``increments`` of the way, halved on failure down to
-    ``min_step_n`` newtons (:class:`_Newton`). A force whose solve fails is recorded as not
+    ``min_step_n`` newtons (:class:`fem.nonlinear.FullStepNewton`). A force whose solve fails is recorded as not
     converged with the solver's message, and so is every larger one (its load path passes through
     the failure). Report per force: converged, increments, Newton iterations, cuts, seconds,
     ``min_det_f`` (:func:`min_det_f`); if not converged, the message and (for the force that

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["MlsimError", "SceneError", "Problem", "MeshingError"]
+__all__ = ["MlsimError", "SceneError", "Problem", "MeshingError", "SolverError"]
 
 
 class MlsimError(RuntimeError):
@@ -50,3 +50,7 @@ class SceneError(ValueError):
 
 class MeshingError(MlsimError):
     """Tetrahedral meshing failed after every retry."""
+
+
+class SolverError(MlsimError):
+    """A nonlinear solve that did not converge (names the case, load factor and residual)."""
