@@ -43,8 +43,14 @@ Pos = Annotated[float, Strict(), Field(gt=0)]
 NonNeg = Annotated[float, Strict(), Field(ge=0)]
 
 
-class _Model(BaseModel):
+class SpecModel(BaseModel):
+    """The base of every scene section, the sensor kinds' [sensor] schemas included: unknown keys
+    are refused, values are frozen, NaN and Inf are refused."""
+
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+_Model = SpecModel
 
 
 # --------------------------------------------------------------------------------------- sensor

@@ -127,3 +127,13 @@ def test_the_ml_rod_array_is_the_default_kind_and_its_hashes_did_not_move():
     explicit = scene.with_values({"sensor.kind": "ml_rod_array"})
     assert explicit.content_hash() == scene.content_hash()
     assert registry.outputs("ml_rod_array")[:3] == ("geometry", "mesh", "solve")
+
+
+@pytest.mark.parametrize("kind, section, field", [("cls", "noise", "rms_mv"), ("plantar_sole", "foundation", "stiffness_n_m3"),
+                                                  ("anyskin", "noise", "rms_ut")])
+def test_the_sibling_kinds_refuse_nan_as_the_scene_does(tmp_path, kind, section, field):
+    """Every [sensor] schema is built on mlsim.scene.SpecModel: a NaN is refused, naming the field."""
+    path = tmp_path / f"{kind}.toml"
+    path.write_text(f'[sensor]\nkind = "{kind}"\n\n[sensor.{section}]\n{field} = nan\n')
+    with pytest.raises(SceneError, match=rf"sensor\.{section}\.{field}"):
+        load_scene(path)

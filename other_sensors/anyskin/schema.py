@@ -8,7 +8,9 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from mlsim.scene import SpecModel
 
 __all__ = ["AnySkinSensor", "SkinSpec", "MagnetometersSpec", "HelmetSpec", "TrajectorySpec", "PushSpec", "AmbientFieldsSpec",
            "DriftSpec", "NoiseSpec", "EstimatorSpec", "RATE_HZ", "MAX_ANGULAR_RATE_DEG_S"]
@@ -46,8 +48,7 @@ GAIT_HZ, ROLL_DEG, PITCH_DEG, YAW_DEG = 2.0, 6.0, 8.0, 6.0
 PUSH_PEAK_N, PUSH_S, REST_S, FIRST_PUSH_S, PUSH_JITTER = 150.0, 1.5, 1.0, 1.0, 0.2
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+_Model = SpecModel  # unknown keys refused, frozen, NaN and Inf refused (the scene's own rule)
 
 
 class SkinSpec(_Model):

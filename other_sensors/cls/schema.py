@@ -8,15 +8,16 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from mlsim.scene import SpecModel
 
 from other_sensors.cls import ltv, shell
 
 __all__ = ["ClsSensor", "PairsSpec", "FoamSpec", "TrajectorySpec", "NoiseSpec", "CalibrationSpec", "EstimatorSpec", "check"]
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+_Model = SpecModel  # unknown keys refused, frozen, NaN and Inf refused (the scene's own rule)
 
 
 class PairsSpec(_Model):

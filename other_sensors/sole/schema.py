@@ -9,7 +9,9 @@ from __future__ import annotations
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import Field, field_validator
+
+from mlsim.scene import SpecModel
 
 from .cells import CELL_AREA_M2, DEFAULT_ROW_COUNTS, SENSOR_RADIUS_FRACTION
 from .feasibility import CLEARANCE_M, EPS_AREA, EPS_FORCE_KG, EPS_TORQUE_NM
@@ -32,8 +34,7 @@ EARLY_CONTACT_LOAD_N = 250.0
 FORCE_NOISE_N = 0.02
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+_Model = SpecModel  # unknown keys refused, frozen, NaN and Inf refused (the scene's own rule)
 
 
 class CellsSpec(_Model):
