@@ -8,6 +8,7 @@ import io
 from pathlib import Path
 
 from mlsim.io import atomic_bytes
+from mlsim.plots import save_png
 from mlsim.stage import Stage, pickle_load, pickle_save
 
 __all__ = ["SIGNALS", "CONTACT", "CONTACT_FORCE_N"]
@@ -75,10 +76,7 @@ def _plot(result, path: Path) -> Path:
     np.atleast_1d(axes)[-1].set_xlabel("t (s)")
     fig.suptitle("AnySkin helmet: change of each chip's field from the first sample; dashed: plate force")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    return atomic_bytes(path, buf.getvalue())
+    return save_png(fig, path, dpi=100)
 
 
 SIGNALS = Stage(
@@ -135,10 +133,7 @@ def _write_contact(result, out_dir: Path, ctx) -> list[Path]:
     fig.suptitle(f"normal force: MAE {result.mae('rebaselined'):.2f} N re-baselined, {result.mae('static'):.2f} N static "
                  "(threshold detector for the CNN, quadratic map for the LSTM)", fontsize=8)
     fig.tight_layout()
-    png = io.BytesIO()
-    fig.savefig(png, format="png", dpi=100)
-    plt.close(fig)
-    files.append(atomic_bytes(out_dir / "anyskin_contact.png", png.getvalue()))
+    files.append(save_png(fig, out_dir / "anyskin_contact.png", dpi=100))
     return files
 
 

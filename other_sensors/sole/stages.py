@@ -3,11 +3,11 @@ foot over its terrain) and ``sole_feasibility`` (CoP, polygons and both step-fea
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
 from mlsim.io import atomic_bytes
+from mlsim.plots import save_png
 from mlsim.stage import Stage, pickle_load, pickle_save
 
 __all__ = ["CONTACT", "FEASIBILITY", "BALANCE", "contact_of_scene", "assessment_of"]
@@ -120,10 +120,7 @@ def _plot(result, path: Path, ctx) -> Path:
     ax.autoscale_view()
     fig.legend(*ax.get_legend_handles_labels(), loc="lower center", fontsize=7, ncol=3)
     fig.tight_layout(rect=(0.0, 0.08, 1.0, 1.0))
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    return atomic_bytes(path, buf.getvalue())
+    return save_png(fig, path, dpi=110)
 
 
 FEASIBILITY = Stage(
@@ -170,10 +167,7 @@ def _write_balance(run, out_dir: Path, ctx) -> list[Path]:
     ax.set(xlabel="t (s)", ylabel="x (mm)", title=f"skin vs F/T ZMP: max {1e3 * run.skin_ft_gap():.1f} mm")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    files.append(atomic_bytes(out_dir / "sole_balance.png", buf.getvalue()))
+    files.append(save_png(fig, out_dir / "sole_balance.png", dpi=110))
     return files
 
 
