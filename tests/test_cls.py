@@ -246,7 +246,7 @@ def test_calibration_fits_to_the_noise_fixes_the_pose_and_names_what_it_cannot_s
     test_poses = trajectory("general", t2, 0.1, 40.0, 10.0, 6.0, 6.0, 1.0, np.random.default_rng(9))
     v2 = ltv.planar_voltages(test_poses, truth)
     errors = {}
-    for name, layout in (("nominal", LAYOUT), ("calibrated", LAYOUT.with_coeffs(fit.coeffs))):
+    for name, layout in (("nominal", LAYOUT), ("calibrated", fit.layout)):
         est = estimate_poses(v2, layout, LmSettings(), 200, ADC_RANGE_V)
         errors[name] = np.sqrt(np.mean((est.poses[:, :2] - test_poses[:, :2]) ** 2))
     assert errors["nominal"] > 0.3 and errors["calibrated"] < 0.05 * errors["nominal"]  # mm
@@ -268,8 +268,24 @@ def test_the_cls_kind_runs_through_mlsim_run_and_caches(tmp_path):
     scene_file = _scene(tmp_path, '\n[sensor.trajectory]\nshape = "general"\nduration_s = 0.6\nrest_s = 0.1\nfrequency_hz = 2.0\n')
     out, cache = tmp_path / "out", tmp_path / "cache"
     assert main(["run", str(scene_file), "--out", str(out), "--cache", str(cache), "--quiet"]) == 0
-    for name in ("cls_signals.csv", "cls_calibration.json", "cls_estimate.csv", "cls_errors.json", "cls_pose.png", "summary.json"):
+    for name in ("cls_signals.csv", "cls_calibration.json", "cls_identifiability.txt", "cls_estimate.csv", "cls_errors.json",
+                 "cls_errors.md", "cls_errors.csv", "cls_pose.png", "summary.json"):
         assert (out / name).stat().st_size > 0
+    # the error table, as CSV and Markdown, agrees with the JSON and carries SPEC 3's figures beside it
+    table = json.loads((out / "cls_errors.json").read_text())["table"]
+    lines = (out / "cls_errors.csv").read_text().splitlines()
+    assert lines[0].split(",")[-2:] == ["spec3_position_mm", "spec3_angle_deg"] and len(lines) == 1 + len(table) == 6
+    cells = [line.split(",") for line in lines[1:]]
+    assert [c[0] for c in cells] == ["0-2", "2-5", "5-10", ">= 10", "all"]
+    assert int(cells[-1][1]) == sum(int(c[1]) for c in cells[:-1]) == 48
+    for c, row in zip(cells, table):
+        assert c[-2:] == ["1-3", "< ~1"] and int(c[1]) == row["n"]
+        if row["n"]:
+            y, z, pos = (float(c[k]) for k in (2, 3, 4))
+            assert pos ** 2 == pytest.approx(y ** 2 + z ** 2, rel=1e-4) and y == pytest.approx(row["y_rms_mm"], rel=1e-5)
+    md = (out / "cls_errors.md").read_text()
+    assert "| SPEC 3 position (mm) | SPEC 3 angle (deg) |" in md and f"| all | 48 | {table[-1]['y_rms_mm']:.4f} |" in md
+    assert "detection latency after the onset" in md
     summary = json.loads((out / "summary.json").read_text())["stages"]
     assert summary["cls_estimate"]["action"] == "run"
     assert summary["cls_signals"]["summary"]["samples"] == 1200

@@ -17,6 +17,10 @@ prototype's pose (y, z, rx) is the restriction p = (0, y, z), q = rotation rx ab
 Jacobian is the columns (dp_y, dp_z, dphi_x) of the full one (exactly, since rotations about x
 commute).
 
+:func:`pair_model` is the same model in NumPy from the relative geometry (d, LED axis, LTV axis),
+with the gradients that calibrating the mounting poses needs; :func:`ring_layout` places pairs off a
+line, which a full 6-DoF pose needs (the prototype's line observes only y, z and theta_x).
+
 The compiled kernel (:mod:`other_sensors.cls.ltv_kernel`, numba, imported on first use so that
 loading a scene does not import numba) is shared by the vectorised public functions here and the
 estimator: one implementation of the geometry, the model and their derivatives.
@@ -28,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PairLayout", "default_layout", "DEFAULT_COEFFS", "ltv_voltage", "ltv_voltage_dc", "quat_to_matrix",
+__all__ = ["PairLayout", "default_layout", "ring_layout", "DEFAULT_COEFFS", "ltv_voltage", "ltv_voltage_dc", "pair_model",
+           "quat_to_matrix", "rotvec_to_quat", "matrix_to_rotvec", "pose6_to_pose",
            "planar_to_pose", "pair_geometry", "pair_voltages", "planar_voltages", "PLANAR_COLUMNS"]
 
 # --- documented defaults (the SPEC does not give them) -------------------------------------------
@@ -169,3 +174,108 @@ def planar_voltages(pose3, layout: PairLayout, jacobian: bool = False):
     p, q = planar_to_pose(pose3)
     V, J, *_ = _batch(p, q, layout, jacobian)
     return (V, J[..., list(PLANAR_COLUMNS)]) if jacobian else V
+
+
+# --- the model from the relative geometry, with its gradients (calibration of the mounting poses) --
+def _cos_factor(c, cos_a, sin_a):
+    """cos(c a) and d cos(c a) / d cos(a) = c sin(c a) / sin(a) = c^2 sinc(c a) / sinc(a) (finite at a = 0)."""
+    a = np.arctan2(sin_a, cos_a)
+    return np.cos(c * a), c * c * np.sinc(c * a / np.pi) / np.sinc(a / np.pi), a
+
+
+def pair_model(d, m, n, c):
+    """The voltage model of SPEC 3 from the relative geometry of a pair, with its analytic gradients.
+
+    Parameters
+    ----------
+    d : (S, 3) mm, LTV -> LED in the base frame.
+    m : (S, 3) unit, the LED's axis in the base frame.
+    n : (S, 3) unit, the LTV's axis in the base frame.
+    c : (7,) or (S, 7), the pair's coefficients.
+
+    Returns
+    -------
+    v : (S,) V; dv_dd (S, 3) V/mm; dv_dm, dv_dn (S, 3) V, the gradients along the unit sphere at m
+    and n (the model depends on the axes' directions only, so the radial part is 0); dv_dc (S, 7);
+    and r (S,) mm, theta (S,), psi (S,) rad.
+
+    Notes
+    -----
+    r = |d|, cos theta = -m.d / r, cos psi = n.d / r (SPEC 3: the LED's and the LTV's incidence).
+    The same model as the compiled kernel (:mod:`ltv_kernel`), in NumPy, since calibration also needs
+    the derivatives with respect to the axes, which the pose estimator does not.
+    """
+    d, m, n = (np.asarray(a, float) for a in (d, m, n))
+    c = np.broadcast_to(np.asarray(c, float), d.shape[:-1] + (7,))
+    r = np.linalg.norm(d, axis=-1)
+    md, nd = np.einsum("...k,...k", m, d), np.einsum("...k,...k", n, d)
+    u_th, u_ps = -md / r, nd / r
+    s_th = np.linalg.norm(np.cross(m, d), axis=-1) / r
+    s_ps = np.linalg.norm(np.cross(n, d), axis=-1) / r
+    c1, c2, c3, c4, c5, c6, _ = np.moveaxis(c, -1, 0)
+    a, da, theta = _cos_factor(c4, u_th, s_th)
+    cp, dcp, psi = _cos_factor(c6, u_ps, s_ps)
+    den = r * r + c2 * r + c3
+    g = c1 / den
+    b = 1.0 + c5 * cp
+    v = g * a * b + c[..., 6]
+    dv_dr = -c1 * (2 * r + c2) / den ** 2 * a * b
+    dv_duth, dv_dups = g * b * da, g * a * c5 * dcp
+    dhat = d / r[..., None]
+    # du_th/dd = -(m - (m.dhat) dhat) / r; du_ps/dd = (n - (n.dhat) dhat) / r
+    dv_dd = (dv_dr[..., None] * dhat
+             - dv_duth[..., None] * (m + u_th[..., None] * dhat) / r[..., None]
+             + dv_dups[..., None] * (n - u_ps[..., None] * dhat) / r[..., None])
+    dv_dm = -dv_duth[..., None] * (dhat + u_th[..., None] * m)  # -(I - m m^T) dhat
+    dv_dn = dv_dups[..., None] * (dhat - u_ps[..., None] * n)  # (I - n n^T) dhat
+    dv_dc = ltv_voltage_dc(r, theta, psi, c)
+    return v, dv_dd, dv_dm, dv_dn, dv_dc, r, theta, psi
+
+
+# --- a layout and poses for the full 6-DoF shell ---------------------------------------------------
+def ring_layout(n_pairs: int = 6, radius_mm: float = 30.0, stagger_mm: float = LED_STAGGER_MM,
+                gap_mm: float = REST_GAP_MM, coeffs=DEFAULT_COEFFS) -> PairLayout:
+    """Pairs on a circle of ``radius_mm`` in the base's xy plane, LEDs staggered ``stagger_mm`` off
+    their LTVs alternately along the tangent and the radius (a choice, not the SPEC's prototype).
+
+    Notes
+    -----
+    SPEC 3's prototype has its pairs in a line and observes only (y, z, theta_x). A full 6-DoF pose
+    needs pairs off the line and staggers in more than one direction: with every LED straight above
+    its LTV, a sideways move changes no r, theta or psi to first order (they are even in it).
+    """
+    ang = 2 * np.pi * np.arange(n_pairs) / n_pairs
+    radial = np.stack([np.cos(ang), np.sin(ang), np.zeros(n_pairs)], axis=1)
+    tangent = np.stack([-np.sin(ang), np.cos(ang), np.zeros(n_pairs)], axis=1)
+    stagger = np.where((np.arange(n_pairs) % 2 == 0)[:, None], tangent, radial) * stagger_mm
+    ltv_pos = radius_mm * radial
+    down = np.tile([0.0, 0.0, -1.0], (n_pairs, 1))
+    return PairLayout(ltv_pos + stagger, down, ltv_pos, -down, np.array([0.0, 0.0, gap_mm]),
+                      np.ascontiguousarray(np.broadcast_to(np.asarray(coeffs, float), (n_pairs, 7))))
+
+
+def rotvec_to_quat(phi):
+    """Quaternions (..., 4) = (w, x, y, z) of rotation vectors phi (..., 3) rad."""
+    phi = np.asarray(phi, float)
+    angle = np.linalg.norm(phi, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(a/2)/a -> 1/2 as a -> 0
+    k = np.where(angle > 1e-12, np.sin(half) / np.where(angle > 1e-12, angle, 1.0), 0.5 - angle ** 2 / 48)
+    return np.concatenate([np.cos(half), k * phi], axis=-1)
+
+
+def pose6_to_pose(pose6):
+    """6-DoF pose (..., 6) = (x, y, z mm, rotation vector rad) -> (p (..., 3) mm, q (..., 4))."""
+    pose6 = np.asarray(pose6, float)
+    return pose6[..., :3].copy(), rotvec_to_quat(pose6[..., 3:])
+
+
+def matrix_to_rotvec(R):
+    """Rotation vectors (..., 3) rad of rotation matrices R (..., 3, 3) (angles below pi)."""
+    R = np.asarray(R, float)
+    cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)
+    angle = np.arccos(cos)
+    axis = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    # angle / (2 sin angle) -> 1/2 as angle -> 0
+    k = np.where(angle > 1e-8, angle / (2 * np.sin(np.maximum(angle, 1e-300))), 0.5 + angle ** 2 / 12)
+    return k[..., None] * axis

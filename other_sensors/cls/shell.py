@@ -15,7 +15,9 @@ origin (statics; the shell's inertia is neglected at these speeds).
 Trajectories are given in pose space (y, z, rx) at the voltage rate (2 kHz), each starting with
 ``rest_s`` of rest: rest, compression (z down and back), shear (y), rotation (rx) and general
 motion (a seeded sum of sines in all three). The reference poses are the same trajectory sampled at
-the reference rate (80 Hz, the motion-capture rate of SPEC 3).
+the reference rate (80 Hz, the motion-capture rate of SPEC 3). :func:`trajectory6` gives the same five
+kinds as full 6-DoF poses (x, y, z, rotation vector) for a shell read by pairs off a line
+(:func:`ltv.ring_layout`); the foam law and the scenes stay planar (SPEC 3's prototype).
 """
 
 from __future__ import annotations
@@ -24,9 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from other_sensors.cls.ltv import PairLayout, planar_voltages
+from other_sensors.cls.ltv import PairLayout, pair_voltages, planar_voltages, pose6_to_pose
 
-__all__ = ["Foam", "foam_stress", "pose_wrench", "pose_from_wrench", "trajectory", "measure", "TRAJECTORIES",
+__all__ = ["Foam", "foam_stress", "pose_wrench", "pose_from_wrench", "trajectory", "trajectory6", "measure", "measure6",
+           "TRAJECTORIES",
            "ADC_BITS", "ADC_RANGE_V"]
 
 # A choice: the foam's small-strain modulus (a soft polyurethane foam, ~30 kPa) and the strain at
@@ -138,13 +141,66 @@ def trajectory(shape: str, t, rest_s: float, rest_z_mm: float, compression_mm: f
     return np.stack([y, rest_z_mm + dz, rx], axis=1)
 
 
+# A choice: the directions of the 6-DoF trajectories' shear (in the xy plane) and rotation axis,
+# away from the axes so that every component of the pose moves.
+SHEAR_DIRECTION_6 = np.array([np.cos(np.radians(30.0)), np.sin(np.radians(30.0)), 0.0])
+ROTATION_AXIS_6 = np.array([1.0, 0.6, 0.4]) / np.linalg.norm([1.0, 0.6, 0.4])
+
+
+def trajectory6(shape: str, t, rest_s: float, rest_z_mm: float, compression_mm: float, shear_mm: float,
+                rotation_deg: float, frequency_hz: float, rng: np.random.Generator):
+    """6-DoF poses (N, 6) = (x, y, z mm, rotation vector rad) at times t (N,) s: the counterparts of
+    :func:`trajectory` for a shell read by pairs off a line. Compression along z; shear along
+    :data:`SHEAR_DIRECTION_6`; rotation about :data:`ROTATION_AXIS_6`; general: a seeded sum of
+    sines in each of the six components (``rng``), growing over 0.25 s."""
+    if shape not in TRAJECTORIES:
+        raise ValueError(f'sensor.trajectory.shape = "{shape}": not a trajectory; choose one of: {", ".join(TRAJECTORIES)}')
+    t = np.asarray(t, float)
+    tau = np.maximum(t - rest_s, 0.0)
+    phase = 2 * np.pi * frequency_hz * tau
+    out = np.zeros((len(t), 6))
+    out[:, 2] = rest_z_mm
+    rot = np.radians(rotation_deg)
+    if shape == "compression":
+        out[:, 2] -= compression_mm * (1 - np.cos(phase)) / 2
+    elif shape == "shear":
+        out[:, :3] += shear_mm * np.sin(phase)[:, None] * SHEAR_DIRECTION_6
+    elif shape == "rotation":
+        out[:, 3:] = rot * np.sin(phase)[:, None] * ROTATION_AXIS_6
+    elif shape == "general":
+        ramp = _smoothstep(tau / 0.25)
+
+        def sines():
+            f = frequency_hz * rng.uniform(0.5, 3.0, size=4)
+            ph = rng.uniform(0, 2 * np.pi, size=4)
+            a = rng.uniform(0.5, 1.0, size=4)
+            return (a[:, None] * np.sin(2 * np.pi * f[:, None] * tau[None, :] + ph[:, None])).sum(0) / a.sum()
+
+        out[:, 0] = shear_mm * ramp * sines()
+        out[:, 1] = shear_mm * ramp * sines()
+        out[:, 2] -= compression_mm * ramp * (1 + sines()) / 2
+        for k in range(3, 6):
+            out[:, k] = rot * ramp * sines()
+    return out
+
+
+def measure6(pose6, layout: PairLayout, noise_rms_mv: float, rng: np.random.Generator, adc_bits: int = ADC_BITS,
+             adc_range_v: float = ADC_RANGE_V):
+    """:func:`measure` for 6-DoF poses (N, 6) = (x, y, z mm, rotation vector rad)."""
+    clean = pair_voltages(*pose6_to_pose(pose6), layout)
+    return _digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v), clean
+
+
+def _digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v):
+    noisy = clean + rng.normal(0.0, noise_rms_mv * 1e-3, size=clean.shape)
+    lsb = adc_range_v / (2 ** adc_bits - 1)
+    return np.clip(np.round(noisy / lsb), 0, 2 ** adc_bits - 1) * lsb
+
+
 def measure(pose3, layout: PairLayout, noise_rms_mv: float, rng: np.random.Generator, adc_bits: int = ADC_BITS,
             adc_range_v: float = ADC_RANGE_V):
     """The pairs' readings (N, P) V of poses (N, 3): the model's voltage plus white Gaussian noise of
     ``noise_rms_mv`` per sample and pair, quantised by an ``adc_bits`` ADC over 0..``adc_range_v``
     (clipped at its rails)."""
     clean = planar_voltages(pose3, layout)
-    noisy = clean + rng.normal(0.0, noise_rms_mv * 1e-3, size=clean.shape)
-    lsb = adc_range_v / (2 ** adc_bits - 1)
-    codes = np.clip(np.round(noisy / lsb), 0, 2 ** adc_bits - 1)
-    return codes * lsb, clean
+    return _digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v), clean
