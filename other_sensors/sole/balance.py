@@ -10,8 +10,12 @@ formula) or the ankle F/T's. Standing still: x_d = xi_d = 0.
 
 The robot is position-controlled: its CoM velocity follows the command with a first-order lag
 (:data:`VELOCITY_LAG_S`), and the ZMP that results, p = x - (x'' - F_push / m) / omega^2, is what the
-foot presses into the ground, held inside the cells' centres' box (a foot cannot push its ZMP
-past its edge; past it the robot would tip). Each control tick the sole's pressure field for that
+foot presses into the ground, held inside the sole's outline less a margin (:data:`ZMP_EDGE_MARGIN_M`,
+:func:`zmp_limit`): a foot cannot push its ZMP past its edge; where the regulator asks for more, the
+ZMP stays at the limit and the rest of the push accelerates the CoM (the foot tips, and the robot
+falls if its capture point leaves the limit: with the ZMP at the edge, xi' = omega (xi - p) + F_push /
+(m omega) only grows. The run then stops there, :attr:`BalanceRun.fall_time_s`, and its remaining
+samples hold the state at the fall). Each control tick the sole's pressure field for that
 ZMP is found on the Winkler layer (a rigid plate on a tensionless foundation carrying m g with
 its centre of pressure at p, :func:`plate_depths`), the cells read it (with their noise), and the
 measured ZMP feeds the next tick.
@@ -25,12 +29,21 @@ import numpy as np
 
 from . import estimators as est
 
-__all__ = ["VELOCITY_LAG_S", "plate_depths", "BalanceRun", "simulate_balance"]
+__all__ = ["VELOCITY_LAG_S", "ZMP_EDGE_MARGIN_M", "UPRIGHT_TOLERANCE_M", "plate_depths", "zmp_limit", "BalanceRun", "simulate_balance"]
 
 # The CoM velocity's tracking lag of the position-controlled robot. A choice (not given): 0.1 s, a
 # joint-position servo loop's bandwidth of ~1.6 Hz for the whole body's CoM; it also keeps the
 # one-tick feedback from the measured ZMP to the command stable (loop gain k_f / (lag omega^2) = 0.4).
 VELOCITY_LAG_S = 0.1
+# How far inside the sole's outline the ZMP can go. A choice (not given): 10 mm. On the Winkler
+# layer a rigid sole carrying the robot's weight at its ZMP sinks 6.6 mm at its front edge with the
+# ZMP 10 mm inside it (x = 102 mm) and without bound as the ZMP nears the edge (a line contact):
+# the last centimetre is the foot rolling onto its edge, not standing. (Until version 2 of the
+# balance stage the limit was the cells' centres' box, x <= 95 mm: short of SPEC 4's 10 cm.)
+ZMP_EDGE_MARGIN_M = 0.01
+# Upright at the end of a run: the CoM back within this distance of the ankle (a choice: 1 cm; a
+# run that falls ends metres away, one that recovers within a millimetre or two).
+UPRIGHT_TOLERANCE_M = 0.01
 
 
 def plate_depths(points: np.ndarray, weights: np.ndarray, stiffness_n_m3: float, force_n: float, cop: np.ndarray,
@@ -67,12 +80,32 @@ def plate_depths(points: np.ndarray, weights: np.ndarray, stiffness_n_m3: float,
     return np.maximum(basis @ c, 0.0)
 
 
+def zmp_limit(layout, margin_m: float = ZMP_EDGE_MARGIN_M) -> tuple[np.ndarray, np.ndarray]:
+    """The region the ZMP can reach: the sole's outline (:meth:`other_sensors.sole.cells.SoleLayout.outline`)
+    moved inward by ``margin_m``, as half-planes n_i . p <= c_i: normals (K, 2) and offsets (K,) m."""
+    outline = layout.outline()  # counter-clockwise
+    edges = np.roll(outline, -1, axis=0) - outline
+    normals = np.column_stack([edges[:, 1], -edges[:, 0]]) / np.linalg.norm(edges, axis=1)[:, None]  # outward
+    offsets = np.einsum("ij,ij->i", normals, outline) - margin_m
+    if not (offsets > 0).all():
+        raise ValueError(f"ZMP edge margin = {margin_m} m: leaves no region around the ankle; use a smaller margin")
+    return normals, offsets
+
+
+def _clip_to(p: np.ndarray, normals: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """p moved toward the ankle (the origin, inside the region) onto the region's boundary when outside."""
+    reach = normals @ p
+    out = reach > offsets
+    return p * float(np.min(offsets[out] / reach[out])) if out.any() else p
+
+
 @dataclass(frozen=True)
 class BalanceRun:
     """A balance run's time series at the control rate (SI units, world = sole frame).
 
     t (T,) s; com (T, 2) m; xi (T, 2) m, capture point; zmp (T, 2) m, the true ZMP; zmp_skin and zmp_ft
-    (T, 2) m, the measured ones; push (T,) N along x.
+    (T, 2) m, the measured ones; push (T,) N along x. fall_time_s: when the capture point left the
+    region the ZMP can reach (the robot fell), NaN if it never did.
     """
 
     t: np.ndarray
@@ -82,6 +115,7 @@ class BalanceRun:
     zmp_skin: np.ndarray
     zmp_ft: np.ndarray
     push: np.ndarray
+    fall_time_s: float = float("nan")
 
     def skin_ft_gap(self) -> float:
         """max_t |zmp_skin - zmp_ft| (m)."""
@@ -90,6 +124,10 @@ class BalanceRun:
     def zmp_excursion(self) -> float:
         """max_t |zmp_ft| (m): how far the pushes moved the ZMP."""
         return float(np.linalg.norm(self.zmp_ft, axis=1).max())
+
+    def upright(self, tolerance_m: float = UPRIGHT_TOLERANCE_M) -> bool:
+        """Whether the robot stood: it never fell and its CoM ends within ``tolerance_m`` of the ankle."""
+        return bool(np.isnan(self.fall_time_s) and np.linalg.norm(self.com[-1]) < tolerance_m)
 
 
 def simulate_balance(layout, spec, stiffness_n_m3: float, rng: np.random.Generator, subdivisions: int = 3,
@@ -105,7 +143,7 @@ def simulate_balance(layout, spec, stiffness_n_m3: float, rng: np.random.Generat
     omega = np.sqrt(g / spec.z_com_m)
     dt = 1.0 / spec.rate_hz
     steps = int(round(spec.duration_s * spec.rate_hz))
-    low, high = layout.centres.min(axis=0), layout.centres.max(axis=0)
+    normals, offsets = zmp_limit(layout)
     x, v, p_meas = np.zeros(2), np.zeros(2), np.zeros(2)
     out = {k: np.zeros((steps, 2)) for k in ("com", "xi", "zmp", "zmp_skin", "zmp_ft")}
     t = np.arange(steps) * dt
@@ -116,7 +154,7 @@ def simulate_balance(layout, spec, stiffness_n_m3: float, rng: np.random.Generat
         p_d = xi + spec.k_xi / omega * (xi - 0.0)
         v_d = spec.k_f * (p_meas - p_d) + spec.k_x * (0.0 - x)
         a = (v_d - v) / VELOCITY_LAG_S
-        p = np.clip(x - (a - f_ext / m) / omega**2, low, high)
+        p = _clip_to(x - (a - f_ext / m) / omega**2, normals, offsets)
         a = omega**2 * (x - p) + f_ext / m
         # what the sole feels: the pressure field of weight m g with its CoP at p
         depth = plate_depths(pts, w, stiffness_n_m3, m * g, p)
@@ -129,6 +167,13 @@ def simulate_balance(layout, spec, stiffness_n_m3: float, rng: np.random.Generat
         p_meas = p_skin if spec.zmp_source == "skin" else p_ft
         for key, value in (("com", x), ("xi", xi), ("zmp", p), ("zmp_skin", p_skin), ("zmp_ft", p_ft)):
             out[key][k] = value
+        if (normals @ xi > offsets).any():  # the capture point is past the ZMP's reach: the robot falls
+            fall = float(t[k])
+            for series in out.values():
+                series[k + 1:] = series[k]
+            break
         v = v + a * dt
         x = x + v * dt
-    return BalanceRun(t, out["com"], out["xi"], out["zmp"], out["zmp_skin"], out["zmp_ft"], push)
+    else:
+        fall = float("nan")
+    return BalanceRun(t, out["com"], out["xi"], out["zmp"], out["zmp_skin"], out["zmp_ft"], push, fall)

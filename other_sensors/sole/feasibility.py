@@ -17,7 +17,7 @@ import numpy as np
 
 from . import estimators as est
 
-__all__ = ["EPS_TORQUE_NM", "EPS_AREA", "EPS_FORCE_KG", "CLEARANCE_M", "ft_rule", "skin_rule", "StepAssessment", "assess_step"]
+__all__ = ["EPS_TORQUE_NM", "EPS_AREA", "EPS_FORCE_KG", "CLEARANCE_M", "AREA_TIE_RTOL", "ft_rule", "skin_rule", "StepAssessment", "assess_step"]
 
 EPS_TORQUE_NM = 8.0  # SPEC 4
 EPS_AREA = 0.8  # SPEC 4
@@ -25,6 +25,10 @@ EPS_FORCE_KG = 0.15  # SPEC 4: a cell is active above 0.15 kg
 # Clearance added to the obstacle's width in a sidestep. A choice (not given): 3 cm, about the
 # placement error of a position-controlled humanoid's footstep plus a margin.
 CLEARANCE_M = 0.03
+# A_p / A_s of a honeycomb is often exactly a simple fraction (0.8 with 20 cells' hull on the default
+# sole): such a tie is SPEC 4's "<=" (re-plan) whatever the round-off of the areas' sums, so the
+# rule compares with this relative slack (far under one cell's share of the sole, ~2e-2).
+AREA_TIE_RTOL = 1e-9
 
 
 def ft_rule(ankle_moment_nm: float, eps_torque_nm: float = EPS_TORQUE_NM) -> bool:
@@ -33,10 +37,10 @@ def ft_rule(ankle_moment_nm: float, eps_torque_nm: float = EPS_TORQUE_NM) -> boo
 
 
 def skin_rule(polygon_area_m2: float, sole_area_m2: float, eps_area: float = EPS_AREA) -> bool:
-    """True (re-plan) when A_p / A_s <= eps_A."""
+    """True (re-plan) when A_p / A_s <= eps_A (SPEC 4), a tie within round-off included (:data:`AREA_TIE_RTOL`)."""
     if not sole_area_m2 > 0:
         raise ValueError(f"sole area = {sole_area_m2}: must be > 0")
-    return bool(polygon_area_m2 / sole_area_m2 <= eps_area)
+    return bool(polygon_area_m2 / sole_area_m2 <= eps_area * (1.0 + AREA_TIE_RTOL))
 
 
 @dataclass(frozen=True)

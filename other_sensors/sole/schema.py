@@ -17,7 +17,7 @@ from .cells import CELL_AREA_M2, DEFAULT_ROW_COUNTS, SENSOR_RADIUS_FRACTION
 from .feasibility import CLEARANCE_M, EPS_AREA, EPS_FORCE_KG, EPS_TORQUE_NM
 
 __all__ = ["SoleSensor", "CellsSpec", "FoundationSpec", "ProximitySpec", "TerrainSpec", "FootSpec", "FeasibilitySpec",
-           "BalanceSpec", "FOUNDATION_STIFFNESS_N_M3", "PROXIMITY_RANGE_MM", "EARLY_CONTACT_LOAD_N", "FORCE_NOISE_N"]
+           "BalanceSpec", "BalanceSweepSpec", "ObstacleSpec", "FOUNDATION_STIFFNESS_N_M3", "PROXIMITY_RANGE_MM", "EARLY_CONTACT_LOAD_N", "FORCE_NOISE_N"]
 
 # --- documented defaults (the SPEC does not give them) -------------------------------------------
 # Winkler modulus of the skin's foam and cover. A choice: the 86 kg robot standing on one whole sole
@@ -195,8 +195,40 @@ class BalanceSpec(_Model):
     zmp_source: Literal["skin", "ft"] = "skin"
 
 
+class BalanceSweepSpec(_Model):
+    """The balance study (stage ``sole_balance_sweep``): :class:`BalanceSpec`'s run once per push
+    magnitude, each reported as its peak ZMP excursion, skin-vs-F/T ZMP gap and whether the robot
+    stood. The default magnitudes (a choice): from small pushes through the one that moves the ZMP
+    10 cm (SPEC 4's reference, ~105 N for 0.2 s) to ones past the sole's edge that topple it."""
+
+    push_n: tuple[Annotated[float, Field(ge=-5000.0, le=5000.0)], ...] = (20.0, 40.0, 60.0, 80.0, 100.0, 105.0, 150.0, 200.0,
+                                                                            250.0, 300.0)
+
+    @field_validator("push_n")
+    @classmethod
+    def _some(cls, value):
+        if not value:
+            raise ValueError("give one or more push magnitudes (N)")
+        return value
+
+
+class ObstacleSpec(_Model):
+    """One case of the obstacle table (stage ``sole_obstacle_table``): a terrain and the foot's pose
+    on it; the cells, foundation, proximity and rules are the scene's."""
+
+    name: str = Field(pattern=r"^[a-z0-9_]{1,40}$")  # names the case's plot file
+    description: str = ""
+    terrain: TerrainSpec
+    foot: FootSpec = FootSpec()
+
+
 class SoleSensor(_Model):
-    """A humanoid's sole covered by hexagonal skin cells (SPEC 4)."""
+    """A humanoid's sole covered by hexagonal skin cells (SPEC 4).
+
+    ``foot`` is the (swing or single-support) foot; ``second_foot``, when given, the other foot on
+    the same terrain, for double support (stage ``sole_double_support``, both soles' polygon in the
+    world); ``obstacles``, when given, the cases of the obstacle table (stage ``sole_obstacle_table``).
+    """
 
     kind: Literal["plantar_sole"] = "plantar_sole"
     cells: CellsSpec = CellsSpec()
@@ -206,3 +238,14 @@ class SoleSensor(_Model):
     foot: FootSpec = FootSpec()
     feasibility: FeasibilitySpec = FeasibilitySpec()
     balance: BalanceSpec = BalanceSpec()
+    balance_sweep: BalanceSweepSpec = BalanceSweepSpec()
+    second_foot: FootSpec | None = None
+    obstacles: tuple[ObstacleSpec, ...] = ()
+
+    @field_validator("obstacles")
+    @classmethod
+    def _unique_names(cls, value):
+        names = [o.name for o in value]
+        if len(set(names)) != len(names):
+            raise ValueError(f"obstacle names {names} repeat; give each case its own name")
+        return value
