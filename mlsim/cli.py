@@ -360,6 +360,9 @@ def build_parser() -> argparse.ArgumentParser:
         pass
     else:
         add_parsers(sub)
+        from classifiers.anyskin_cli import add_parsers as add_anyskin_parsers  # mlsim anyskin-train (issue 19)
+
+        add_anyskin_parsers(sub)
     return parser
 
 

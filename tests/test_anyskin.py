@@ -13,7 +13,7 @@ import pytest
 import other_sensors.anyskin.kind  # noqa: F401  (registers the anyskin kind)
 from mlsim.cli import main
 from mlsim.scene import SceneError, load_scene
-from other_sensors.anyskin.contact_state import ONSET, RELEASE, track_contacts, window_slope_weights
+from other_sensors.anyskin.contact_state import ONSET, RELEASE, REBASELINE_SAMPLES, ThresholdStandIn, track_contacts, window_slope_weights
 from other_sensors.anyskin.dipoles import MU0, dipole_field, dipole_field_jacobian
 from other_sensors.anyskin.helmet import head_rotations, helmet_layout, plate_forces, push_profile, rotation
 from other_sensors.anyskin.schema import AnySkinSensor
@@ -220,18 +220,23 @@ def _press(offset_ut: float) -> np.ndarray:
 
 
 def test_the_contact_state_machine_rebaselines_on_the_falling_edge():
-    args = (150.0, 1.0, 5, 10.0, 50, 60.0, 60.0)
+    args = (150.0, 1.0, 5, 10.0, 50, ThresholdStandIn(60.0, 60.0))
     tracked = track_contacts(_press(20.0), *args, rebaseline=True)
-    assert (tracked.event[:, 0] == ONSET).sum() == 1 and (tracked.event[:, 0] == RELEASE).sum() == 1
+    commit = int(np.argmax(tracked.rebaselines[:, 0]))
+    assert (tracked.event[:, 0] == ONSET).sum() == 1 and (tracked.event[:commit + 1, 0] == RELEASE).sum() == 1
     onset, release = np.argmax(tracked.event[:, 0] == ONSET), np.argmax(tracked.event[:, 0] == RELEASE)
-    assert 2.0 < onset / 150 < 2.5 and release / 150 > 4.0
+    # the release ends the fall (3.5 s .. 4.0 s), a slope window (1/3 s) late at most
+    assert 2.0 < onset / 150 < 2.5 and 4.0 < release / 150 < 4.0 + 1 / 3
     assert tracked.state[onset:release, 0].all() and not tracked.state[release:, 0].any() and not tracked.event[:, 1].any()
+    # O commits at the end of the first quiet span of R samples after the edge (the reading is flat from 4.0 s on)
+    assert tracked.rebaselines[:, 0].sum() == 1 and commit == release + REBASELINE_SAMPLES
     np.testing.assert_allclose(tracked.offsets[-1, 0], [0.0, 0.0, 20.0], atol=1e-9)  # O: the set left by the press
+    assert not tracked.offsets[: commit + 1].any()
     assert abs(tracked.signal[-1, 0, 2]) < 0.5  # back at zero after the re-baseline
     static = track_contacts(_press(20.0), *args, rebaseline=False)
     assert static.signal[-1, 0, 2] == pytest.approx(20.0, abs=0.5) and not static.offsets.any()
     with pytest.raises(ValueError, match="calibration_s"):
-        track_contacts(_press(0.0), 150.0, 10.0, 5, 10.0, 50, 60.0, 60.0)
+        track_contacts(_press(0.0), 150.0, 10.0, 5, 10.0, 50, ThresholdStandIn(60.0, 60.0))
 
 
 # ------------------------------------------------------------------------------------- the kind

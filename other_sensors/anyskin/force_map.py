@@ -1,4 +1,5 @@
-"""Flux-to-force map per sensor: a quadratic ridge regression standing in for SPEC 2's LSTM + MLP (a later task).
+"""Flux-to-force map per sensor: a quadratic ridge regression, the untrained stand-in for SPEC 2's LSTM + MLP
+(:mod:`classifiers.anyskin_force_lstm` replaces it when the scene names trained files; see :mod:`.estimate`).
 
 Features of one sensor's five chips x (15,) uT: [1, x / s, (x / s)^2] with s = 100 uT (a choice, to
 keep the features O(1)); weights by ridge least squares, lambda = RIDGE (a choice: a tiny ridge only

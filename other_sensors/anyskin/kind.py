@@ -5,7 +5,7 @@ from __future__ import annotations
 from mlsim.stage import register_kind
 
 from .schema import MAX_ANGULAR_RATE_DEG_S, AnySkinSensor
-from .stages import CONTACT, SIGNALS
+from .stages import CONTACT, DRIFT, PITCH, SIGNALS
 
 __all__ = ["AnySkinSensor", "KIND"]
 
@@ -24,11 +24,20 @@ def _check(scene) -> list:
     if s.magnetometers.pitch_mm >= s.skin.side_mm / 2:
         problems.append(("sensor.magnetometers.pitch_mm", s.magnetometers.pitch_mm,
                          f"the outer chips must lie under the skin: make it < sensor.skin.side_mm / 2 = {s.skin.side_mm / 2:g}"))
+    from .estimate import model_path
+
+    for name in ("contact_model", "force_model"):
+        path = getattr(s.estimator, name)
+        if path is not None and not model_path(path).is_file():
+            problems.append((f"sensor.estimator.{name}", path, "no such file; train both with 'mlsim anyskin-train SCENE --out DIR'"))
+    if (s.estimator.contact_model is None) != (s.estimator.force_model is None):
+        problems.append(("sensor.estimator.force_model" if s.estimator.force_model is None else "sensor.estimator.contact_model", None,
+                         "give both trained files (mlsim anyskin-train writes both) or neither (the stand-ins)"))
     if tr.duration_s * s.magnetometers.rate_hz < 2:
         problems.append(("sensor.trajectory.duration_s", tr.duration_s, "give at least two samples"))
     return problems
 
 
-KIND = register_kind("anyskin", AnySkinSensor, [SIGNALS, CONTACT], check=_check)
+KIND = register_kind("anyskin", AnySkinSensor, [SIGNALS, CONTACT, DRIFT, PITCH], check=_check)
 """The Head-On helmet of SPEC 2: four AnySkin magnetic skins in an X on a quadruped's pitched helmet face,
 pushed against a force plate while walking; ``other_sensors.anyskin.kind`` registers the ``anyskin`` kind."""

@@ -125,8 +125,11 @@ class NoiseSpec(_Model):
 
 
 class EstimatorSpec(_Model):
-    """SPEC 2's causal contact pipeline, with a threshold detector standing in for the causal CNN
-    (:mod:`other_sensors.anyskin.contact_state`)."""
+    """SPEC 2's causal contact pipeline (:mod:`other_sensors.anyskin.contact_state`): the causal CNN and
+    the LSTM-MLP force map when ``contact_model`` and ``force_model`` name their files (written by
+    ``mlsim anyskin-train``; a relative path is tried from the working directory, then from the
+    project's root), else the stand-ins (a slope-threshold detector with ``onset_slope_ut_s`` and
+    ``release_slope_ut_s``, and a quadratic map fitted on a calibration run)."""
 
     median_samples: int = Field(5, ge=1, le=101)  # a choice: odd, ~33 ms at 150 Hz, removes single-sample spikes
     lowpass_hz: float = Field(10.0, gt=0.0, le=75.0)  # a choice: pushes last ~1 s; keeps 10 Hz, cuts noise
@@ -134,6 +137,8 @@ class EstimatorSpec(_Model):
     onset_slope_ut_s: float = Field(60.0, gt=0.0)  # a choice, see contact_state.py
     release_slope_ut_s: float = Field(60.0, gt=0.0)
     calibration_s: float = Field(1.0, gt=0.0, le=60.0)  # the initial baseline: the mean of the first samples
+    contact_model: str | None = None  # the causal CNN's file (mlsim anyskin-train: anyskin_contact_cnn.pt)
+    force_model: str | None = None  # the LSTM-MLP's file (mlsim anyskin-train: anyskin_force_lstm.pt)
 
 
 class AnySkinSensor(_Model):

@@ -1,0 +1,109 @@
+"""The helmet studies of SPEC 2: force error against the skin's drift rate, and the face-pitch criteria.
+
+- :func:`drift_sweep`: the scene re-simulated with the permanent-set fraction scaled (the set's rate,
+  fraction / tau_set, SPEC 2's dominant drift), each run estimated with and without re-baselining;
+  per rate the MAE per axis over the scored samples and the z MAE over the last ``tail_cycles`` push
+  cycles (where the drift has built up).
+- :func:`pitch_criteria`: SPEC 2's two criteria for the face pitch, from the simulated ground truth
+  (as the helmet's designers chose it, by simulation): B, per sensor, the count of samples whose
+  contact force exceeds 50 N (the SPEC wants a high mean and a low spread across sensors), and
+  SNR_xy = |mean F_xy| / sqrt(trace(Sigma_xy)) of each sensor's planar force over its contact
+  samples (normal force > 2 N), the mean of the planar force against its spread; NaN for a sensor
+  with fewer than ``MIN_CONTACT_SAMPLES`` (15, 0.1 s) contact samples, whose ratio is noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["DriftRow", "PitchRow", "drift_sweep", "pitch_criteria", "snr_xy", "count_above", "B_FORCE_N", "SWEEP_FACTORS",
+           "PITCHES_DEG"]
+
+B_FORCE_N = 50.0  # SPEC 2: contact forces above 50 N
+CONTACT_N = 2.0  # a sample is in contact above this normal force (the labels' threshold)
+MIN_CONTACT_SAMPLES = 15
+SWEEP_FACTORS = (0.0, 0.5, 1.0, 2.0, 4.0)  # times the scene's set fraction (capped at 1)
+PITCHES_DEG = (0.0, 10.0, 15.0, 20.0, 25.0, 30.0)  # SPEC 2's candidates
+
+
+def count_above(normal_n, threshold_n: float = B_FORCE_N) -> np.ndarray:
+    """B: per sensor, the samples with normal force > threshold, (S,) int from normal_n (T, S)."""
+    return (np.asarray(normal_n) > threshold_n).sum(axis=0)
+
+
+def snr_xy(force_n, normal_n, contact_n: float = CONTACT_N, min_samples: int = MIN_CONTACT_SAMPLES) -> np.ndarray:
+    """SNR_xy per sensor, (S,): |mean F_xy| / sqrt(trace(cov F_xy)) over its contact samples (NaN: < min_samples).
+
+    force_n (T, S, 3) N in each sensor's frame; normal_n (T, S) N.
+    """
+    out = np.full(force_n.shape[1], np.nan)
+    for i in range(force_n.shape[1]):
+        f = force_n[normal_n[:, i] > contact_n, i, :2]
+        if len(f) >= max(2, min_samples):
+            out[i] = np.linalg.norm(f.mean(axis=0)) / np.sqrt(np.trace(np.cov(f, rowvar=False)))
+    return out
+
+
+@dataclass(frozen=True)
+class DriftRow:
+    """One drift rate: set_fraction, rate_per_s (fraction / tau_set), final_set_um (largest, any sensor),
+    mae_rebaselined, mae_static (3,) N per axis; tail_z_rebaselined, tail_z_static N; rebaselines (total)."""
+
+    set_fraction: float
+    rate_per_s: float
+    final_set_um: float
+    mae_rebaselined: np.ndarray
+    mae_static: np.ndarray
+    tail_z_rebaselined: float
+    tail_z_static: float
+    rebaselines: int
+
+
+def drift_sweep(sensor, seed: int, estimator, factors=SWEEP_FACTORS, tail_cycles: int = 5) -> list[DriftRow]:
+    """See the module docstring. estimator: an :class:`other_sensors.anyskin.estimate.Estimator`."""
+    from .estimate import estimate_contacts
+    from .signals import simulate_helmet
+
+    rows = []
+    for f in factors:
+        fraction = min(1.0, sensor.drift.set_fraction * f)
+        s = sensor.model_copy(update={"drift": sensor.drift.model_copy(update={"enabled": fraction > 0, "set_fraction": fraction})})
+        sig = simulate_helmet(s, seed)
+        est = estimate_contacts(s, sig, seed, estimator)
+        tail = slice(-tail_cycles - 1, None)  # the last complete cycles and the partial one at the end
+        rows.append(DriftRow(fraction, fraction / s.drift.tau_set_s, float(sig.set_mm[-1].max() * 1e3),
+                             np.array([est.mae("rebaselined", a) for a in range(3)]), np.array([est.mae("static", a) for a in range(3)]),
+                             float(np.nanmean(est.cycle_mae("rebaselined")[tail, 2])), float(np.nanmean(est.cycle_mae("static")[tail, 2])),
+                             int(est.rebaselines.sum())))
+    return rows
+
+
+@dataclass(frozen=True)
+class PitchRow:
+    """One face pitch: b (4,) samples above 50 N per sensor, snr (4,) SNR_xy per sensor."""
+
+    pitch_deg: float
+    b: np.ndarray
+    snr: np.ndarray
+
+    @property
+    def b_mean(self) -> float:
+        return float(self.b.mean())
+
+    @property
+    def b_std(self) -> float:
+        return float(self.b.std())
+
+
+def pitch_criteria(sensor, seed: int, pitches=PITCHES_DEG) -> list[PitchRow]:
+    """See the module docstring: the scene's run at each face pitch, same seed."""
+    from .signals import simulate_helmet
+
+    rows = []
+    for p in pitches:
+        s = sensor.model_copy(update={"helmet": sensor.helmet.model_copy(update={"face_pitch_deg": float(p)})})
+        sig = simulate_helmet(s, seed)
+        rows.append(PitchRow(float(p), count_above(sig.normal_n), snr_xy(sig.force_n, sig.normal_n)))
+    return rows
