@@ -68,3 +68,39 @@ def test_friction_slip_on_the_nonlinear_tier(tiny_mesh):
     assert ratio[end] == pytest.approx(mu, rel=0.02)
     assert nl.stick_fraction[end] == 0.0
     assert nl.contact_force_n[end, 0] > 0
+
+
+def test_contact_woodbury_directions_solve_the_frictional_tangent():
+    """fem.finite_strain.ContactWoodbury: with the body tangent just factorised, Woodbury's identity on
+    the touching points solves A = K - W D W^T exactly (non-symmetric D, points out of contact left
+    out); after the body tangent has moved on, GMRES preconditioned by the old factor reaches the
+    forcing term without a new factorisation, and the contact set changing costs none either."""
+    import scipy.sparse as sp
+
+    from fem.finite_strain import INNER_RTOL, ContactWoodbury
+
+    rng = np.random.default_rng(3)
+    n, m = 400, 30
+    L = sp.random(n, n, density=0.01, random_state=4) + sp.identity(n) * 5.0
+    K = (L @ L.T).tocsr()  # symmetric positive definite, sparse
+    W = sp.random(n, 3 * m, density=0.02, random_state=5).tocsr()
+    D = -rng.uniform(0.5, 2.0, (m, 3, 3)) * 40.0  # stiff and not symmetric, like a frictional law's
+    D[::3] = 0.0  # a third of the points out of contact
+    Dm = sp.block_diag(list(D), format="csr")
+    b = rng.standard_normal(n)
+    woodbury = ContactWoodbury(W)
+    A = (K - W @ Dm @ W.T).tocsr()
+    x = woodbury.direction(A, K, D, b)
+    assert woodbury.factorisations == 1
+    assert np.linalg.norm(A @ x - b) <= 1e-10 * np.linalg.norm(b)
+    # the body stiffens by 5 % and more points touch: no new factorisation, the forcing term met
+    K2 = (1.05 * K).tocsr()
+    D2 = D.copy()
+    D2[::3] = -40.0 * np.eye(3)
+    A2 = (K2 - W @ sp.block_diag(list(D2), format="csr") @ W.T).tocsr()
+    x2 = woodbury.direction(A2, K2, D2, b)
+    assert woodbury.factorisations == 1
+    assert np.linalg.norm(A2 @ x2 - b) <= INNER_RTOL * np.linalg.norm(b)
+    # and the exact answer's: to the forcing term times A's conditioning, far from the undamped guess
+    exact = np.linalg.solve(A2.toarray(), b)
+    assert np.linalg.norm(x2 - exact) <= 1e-2 * np.linalg.norm(exact)

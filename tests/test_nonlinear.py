@@ -92,6 +92,13 @@ def test_vectorised_tangent_equals_scikit_fem_form_assembly(rod):
     r = residual_u(d.u, mu_q, p_q, d.pressure_scale, np.asarray(F), np.asarray(Finv))
     r_ref = skfem.asm(_residual_u, d.u, F=F, J=det(F), Finv=Finv, p=p_q, mu=mu_q, s=d.pressure_scale)
     np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-13 * np.abs(r_ref).max())
+    # and the displacement-pressure block: one batched product against the pairwise form
+    from fem.nonlinear import _tangent_up, tangent_up
+
+    kup = tangent_up(d.u, d.p, d.pressure_scale, np.asarray(Finv))
+    kup_ref = skfem.asm(_tangent_up, d.p, d.u, F=F, J=det(F), Finv=Finv, s=d.pressure_scale)
+    assert kup.shape == kup_ref.shape
+    assert abs(kup - kup_ref).max() <= 1e-13 * abs(kup_ref).max()
 
 
 def test_small_load_agrees_with_the_linear_tier(rod):
