@@ -52,6 +52,7 @@ class SolveSettings:
     small_strain_limit: float = 0.5  # refuse a step where a contact point moves more than this x rod height
     contact_solver: str = "admm"  # "admm" (fem.contact_admm) | "newton" (fem.condensed._newton_points)
     contact_max_iterations: int = 200  # ADMM iterations per linearisation
+    nonlinear_newton: str = "penalty"  # the nonlinear tier's step solver: "penalty" | "condensed" (fem.finite_strain)
     rod_kinematics: str = "first_order"  # "first_order" | "second_order" (fem.rod_kinematics; admm only)
 
     @classmethod
@@ -65,7 +66,8 @@ class SolveSettings:
         return cls(tier=f.tier, element=element, substeps=f.substeps, contact_band_m=f.contact_band_mm * 1e-3,
                    penalty_factor=f.penalty_factor, patches_per_tip=f.patches_per_tip, patches_per_side=f.patches_per_side,
                    gravity=f.gravity, small_strain_limit=f.small_strain_limit, contact_solver=f.contact_solver,
-                   contact_max_iterations=f.contact_max_iterations, rod_kinematics=f.rod_kinematics)
+                   contact_max_iterations=f.contact_max_iterations, rod_kinematics=f.rod_kinematics,
+                   nonlinear_newton=f.nonlinear_newton)
 
 
 def layer_materials(scene):

@@ -104,3 +104,4 @@ def test_contact_woodbury_directions_solve_the_frictional_tangent():
     # and the exact answer's: to the forcing term times A's conditioning, far from the undamped guess
     exact = np.linalg.solve(A2.toarray(), b)
     assert np.linalg.norm(x2 - exact) <= 1e-2 * np.linalg.norm(exact)
+
