@@ -123,12 +123,20 @@ def save_contact_cnn(model: ContactCNN, path, meta: dict | None = None) -> Path:
     """Write the CNN (its weights, L, scale and the training's meta data: plain values) to one file."""
     payload = {"format": CONTACT_CNN_FORMAT, "version": _VERSION, "window": model.window,
                "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}, "meta": dict(meta or {})}
+    return save_payload(payload, path)
+
+
+def save_payload(payload: dict, path) -> Path:
+    """torch.save ``payload`` to ``path`` atomically (:func:`mlsim.io.atomic_bytes`), making its folder."""
+    import io
+
+    from mlsim.io import atomic_bytes
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.part")
-    torch.save(payload, tmp)
-    tmp.replace(path)
-    return path
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    return atomic_bytes(path, buffer.getvalue())
 
 
 def load_contact_cnn(path) -> ContactCNN:

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from classifiers.anyskin_contact_cnn import _load
+from classifiers.anyskin_contact_cnn import _load, save_payload
 
 __all__ = ["ForceLSTM", "predict_forces", "save_force_lstm", "load_force_lstm", "FORCE_LSTM_FORMAT", "IN_SCALE_UT", "OUT_SCALE_N"]
 
@@ -66,12 +66,7 @@ def save_force_lstm(model: ForceLSTM, path, meta: dict | None = None) -> Path:
     """Write the regressor (weights, sizes, the training's meta data) to one file."""
     payload = {"format": FORCE_LSTM_FORMAT, "version": 1, "n_inputs": model.n_inputs, "hidden": model.hidden,
                "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}, "meta": dict(meta or {})}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.part")
-    torch.save(payload, tmp)
-    tmp.replace(path)
-    return path
+    return save_payload(payload, path)
 
 
 def load_force_lstm(path) -> ForceLSTM:
