@@ -153,6 +153,26 @@ def _solve3(A, b, x):
 
 
 @njit(cache=True)
+def _damped_normal_equations(J, w, e, lam, A, Ad, g):
+    """The weighted LM system of SPEC 3 in place: A = J^T W^2 J, g = J^T W^2 e, Ad = A + lam diag(A)
+    (J (n, k), w, e (n,); the planar and the 6-DoF solver share it)."""
+    n, k = J.shape
+    for a in range(k):
+        g[a] = 0.0
+        for b in range(k):
+            A[a, b] = 0.0
+        for i in range(n):
+            ww = w[i] * w[i]
+            g[a] += J[i, a] * ww * e[i]
+            for b in range(k):
+                A[a, b] += J[i, a] * ww * J[i, b]
+    for a in range(k):
+        for b in range(k):
+            Ad[a, b] = A[a, b]
+        Ad[a, a] += lam * A[a, a]
+
+
+@njit(cache=True)
 def _lm(vm, ok, mu0, led_pos, led_axis, ltv_pos, ltv_axis, coeffs, tau, rmin, rmax, thmax, tol, max_iter, lam0, mu_out):
     """One LM estimate; writes mu_out (3,) and returns (iterations, status)."""
     n = vm.shape[0]
@@ -178,19 +198,7 @@ def _lm(vm, ok, mu0, led_pos, led_axis, ltv_pos, ltv_axis, coeffs, tau, rmin, rm
     it = 0
     while it < max_iter:
         it += 1
-        for a in range(3):
-            g[a] = 0.0
-            for b in range(3):
-                A[a, b] = 0.0
-            for i in range(n):
-                ww = w[i] * w[i]
-                g[a] += J[i, a] * ww * e[i]
-                for b in range(3):
-                    A[a, b] += J[i, a] * ww * J[i, b]
-        for a in range(3):
-            for b in range(3):
-                Ad[a, b] = A[a, b]
-            Ad[a, a] += lam * A[a, a]
+        _damped_normal_equations(J, w, e, lam, A, Ad, g)
         if not _solve3(Ad, g, step):
             status = SINGULAR
             break
@@ -400,19 +408,7 @@ def _lm6(vm, ok, p0, R0, led_pos, led_axis, ltv_pos, ltv_axis, coeffs, tau, rmin
     it = 0
     while it < max_iter:
         it += 1
-        for a in range(6):
-            g[a] = 0.0
-            for b in range(6):
-                A[a, b] = 0.0
-            for i in range(n):
-                ww = w[i] * w[i]
-                g[a] += J[i, a] * ww * e[i]
-                for b in range(6):
-                    A[a, b] += J[i, a] * ww * J[i, b]
-        for a in range(6):
-            for b in range(6):
-                Ad[a, b] = A[a, b]
-            Ad[a, a] += lam * A[a, a]
+        _damped_normal_equations(J, w, e, lam, A, Ad, g)
         if not _solve_n(Ad, g, step):
             status = SINGULAR
             break
