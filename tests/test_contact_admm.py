@@ -177,6 +177,47 @@ def test_the_solve_on_the_touching_rods_is_the_solve_on_all():
     assert added > 0  # some seed's coupling pulled a left-out rod into contact: the add path ran
 
 
+def test_a_sub_operator_on_some_points_is_the_dense_principal_sub_operator():
+    """The operator on a subset of points (some rods cut to a few of their points, others whole) is
+    the dense operator's principal sub-block: its product and its (G + rho I)^-1."""
+    rods, dense, _, rod, rng = _rod_block_problem(5, sizes=(6, 5, 7, 4))
+    keep = np.flatnonzero((rod == 1) | np.isin(np.arange(len(rod)), [0, 2, 11, 14, 15]))  # rod 1 whole, 0 and 2 cut, 3 out
+    sub = rods.restrict_points(keep)
+    assert sub is rods.restrict_points(keep)  # kept, with its rho ladder
+    sel = (3 * keep[:, None] + np.arange(3)).ravel()
+    G = dense.C[np.ix_(sel, sel)] + np.diag(np.repeat(dense.inv_k[keep], 3))
+    r = rng.standard_normal((len(keep), 3))
+    np.testing.assert_allclose(sub.apply(r).ravel(), G @ r.ravel(), rtol=1e-12)
+    for rho in (1e-6, 1e-4, 1e-2):
+        np.testing.assert_allclose(sub._solve(sub._factorise(rho), r, rho).ravel(), np.linalg.solve(G + rho * np.eye(len(G)), r.ravel()), rtol=1e-9)
+
+
+def test_a_rod_with_few_touching_points_takes_part_with_those_alone():
+    """On a rod where a few of its points reach the indenter unloaded, only those take part; the
+    others are checked after and added where the loaded ones pull them in (through the rod's own
+    compliance). The forces equal the solve on every point."""
+    added = 0
+    for seed in range(8):
+        rods, _, _, rod, rng = _rod_block_problem(40 + seed, sizes=(8, 9, 7))
+        m = len(rod)
+        n = np.tile([0.0, 0.0, 1.0], (m, 1))
+        b = 1e-6 * rng.standard_normal((m, 3))
+        first = np.r_[0, np.cumsum(np.bincount(rod))[:-1]]
+        b[:, 2] = 1e-9  # a hair away ...
+        b[first, 2] = b[first + 1, 2] = -1e-5  # ... but for two points of each rod: fewer than WHOLE_ROD_FRACTION
+        f_all, *_, res_all, tol_all = ca.admm_contact(rods, b, n, MU, rtol=1e-10, max_iterations=50000)
+        f, z, rung, it, res, tol = ca.admm_on_touching_rods(rods, b, n, MU, rtol=1e-10, max_iterations=50000)
+        assert res <= tol and res_all <= tol_all
+        np.testing.assert_allclose(f, f_all, atol=1e-6 * np.abs(f_all).max())
+        first_problem = next(iter(rods._restricted.values()))
+        assert len(first_problem.points) == 2 * len(first)  # the pressed points alone
+        loaded = np.flatnonzero(f[:, 2] != 0)
+        added += len(set(loaded) - set(first) - set(first + 1)) > 0
+        sigma = rods.apply(f) + b
+        assert np.all(sigma[f[:, 2] == 0, 2] >= -1e-9 * np.abs(b).max())  # no left-out point inside
+    assert added > 0  # some seed pulled a left-out point into contact: the add path ran
+
+
 # ---------------------------------------------------------------------------------- bounded work
 def test_the_iteration_bound_holds_and_the_residual_is_reported():
     rng = np.random.default_rng(4)
