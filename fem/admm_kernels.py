@@ -55,10 +55,12 @@ def _rod_end(rod, start):
 def _solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
     """(G + rho I)^-1 r, r (m, 3). EIGEN (:class:`fem.contact_admm.DenseDelassus`): Q diag(d_inv) Q^T r,
     ``inverse`` = Q, d_inv = 1 / (lambda + rho). ROD_BLOCKS (:class:`fem.contact_admm.RodBlockDelassus`,
-    the points rod by rod, ``rod`` (m,) their rod 0 .. n_rods - 1): each rod's block
-    Q_a diag(d_inv_a) Q_a^T (``inverse`` (1, sum (3 m_a)^2): the Q_a one after the other, row-major),
-    then Woodbury on the rods' resultants: x = v - Y K S^T v, v the block solve, S^T the sum per rod,
-    Y (3 m, 3) the block solves of S, K (3 R, 3 R)."""
+    the points rod by rod, ``rod`` (m,) their rod 0 .. n_rods - 1): each rod's block inverse
+    B_a^-1 = Q_a diag(d_inv_a) Q_a^T, formed per rho (``inverse`` (1, sum (3 m_a)^2): the B_a^-1 one
+    after the other, row-major; one product per rod instead of two with Q_a: the default demo's
+    11 tips of 93 unknowns, 32 instead of 65 us), then Woodbury on the rods' resultants:
+    x = v - Y K S^T v, v the block solve, S^T the sum per rod, Y (3 m, 3) the block solves of S,
+    K (3 R, 3 R)."""
     m = r.shape[0]
     if mode == EIGEN:  # both products with Q (Q^T r as r^T Q: one matrix stays in cache, where Q and a
         # copy of Q^T took 1.6 x as long)
@@ -66,15 +68,14 @@ def _solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
     flat = r.reshape(3 * m)
     v = np.empty(3 * m)
     summed = np.zeros(3 * n_rods)
-    Qs = inverse[0]
+    inverses = inverse[0]
     start = 0
     offset = 0
     while start < m:
         a, end = rod[start], _rod_end(rod, start)
         lo, hi = 3 * start, 3 * end
         nb = hi - lo
-        Q = Qs[offset : offset + nb * nb].reshape(nb, nb)
-        v[lo:hi] = Q @ (d_inv[lo:hi] * (flat[lo:hi] @ Q))
+        v[lo:hi] = inverses[offset : offset + nb * nb].reshape(nb, nb) @ flat[lo:hi]
         for i in range(start, end):
             for c in range(3):
                 summed[3 * a + c] += v[3 * i + c]

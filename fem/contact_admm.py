@@ -90,6 +90,7 @@ SECOND_ORDER_RTOL = 1e-2
 WHOLE_ROD_FRACTION = 0.5
 SUB_OPERATORS_KEPT = 256  # restricted operators (and their rho ladders) kept per operator
 SUB_BLOCKS_KEPT = 1024  # diagonalised sub-blocks kept per operator
+INVERSES_KEPT = 512  # the blocks' explicit inverses, per rho, kept per operator (a tip's: 93^2 doubles)
 
 
 _EMPTY_2D, _EMPTY_INT = np.zeros((0, 0)), np.zeros(0, dtype=np.int64)
@@ -203,8 +204,9 @@ class RodBlockDelassus(_Delassus):
     2.3 % with no coupling at all). The points must come rod by rod (``rod`` non-decreasing).
 
     (G + rho I)^-1 per rod block and Woodbury on the 3 R resultants: B_a = C_aa + diag(1/k_a) + rho I =
-    Q_a diag(lambda_a + rho) Q_a^T (diagonalised once: every rho is free), v = B^-1 r,
-    x = v - Y K S^T v with Y = B^-1 S and K = (I + H S^T Y)^-1 H (3 R x 3 R, per rho)."""
+    Q_a diag(lambda_a + rho) Q_a^T (diagonalised once: each rho's block inverse is one product,
+    formed once per block and rho), v = B^-1 r, x = v - Y K S^T v with Y = B^-1 S and
+    K = (I + H S^T Y)^-1 H (3 R x 3 R, per rho)."""
 
     anderson_memory = DENSE_ANDERSON_MEMORY
 
@@ -235,13 +237,14 @@ class RodBlockDelassus(_Delassus):
         self._restricted: dict[bytes, RodBlockDelassus] = {}
         self._sub_blocks: dict[tuple, tuple] = {}  # (rod, its kept points) -> (C, eigenvalues, eigenvectors)
         self._evicted_factorisations = 0
+        self._block_keys = [("rod", a) for a in range(self.n_rods)]  # each block's name in _inverses
+        self._inverses: dict[tuple, np.ndarray] = {}  # (block key, rho) -> the block's (B_a + rho I)^-1, shared with the sub-operators
         super().__init__()
 
     def _set_blocks(self, eig: list, Qs: list) -> None:
         self._C_flat = np.ascontiguousarray(np.concatenate([C.ravel() for C in self.blocks]) if self.blocks else np.zeros(0))
         self._eig, self._Q = eig, Qs
         self.eigenvalues = np.concatenate(eig) if eig else np.zeros(0)
-        self._Q_flat = np.ascontiguousarray(np.concatenate([Q.ravel() for Q in Qs]) if Qs else np.zeros(0))[None, :]
         self._rod_int = np.ascontiguousarray(self.rod, dtype=np.int64)
 
     def restrict(self, rods: np.ndarray) -> "RodBlockDelassus":
@@ -263,16 +266,18 @@ class RodBlockDelassus(_Delassus):
             point_rod = self.rod[points]
             rods = np.unique(point_rod)
             sizes = np.diff(self._starts)
-            blocks, eig, Qs = [], [], []
+            blocks, eig, Qs, keys = [], [], [], []
             for a in rods:
                 mine = points[point_rod == a]
                 if len(mine) == sizes[a]:
                     blocks.append(self.blocks[a])
                     eig.append(self._eig[a])
                     Qs.append(self._Q[a])
+                    keys.append(self._block_keys[a])
                     continue
                 local = mine - self._starts[a]
-                sub_key = (int(a), local.tobytes())
+                sub_key = (self._block_keys[a], local.tobytes())
+                keys.append(sub_key)
                 if sub_key not in self._sub_blocks:
                     idx = (3 * local[:, None] + np.arange(3)).ravel()
                     C = np.ascontiguousarray(self.blocks[a][np.ix_(idx, idx)])
@@ -297,6 +302,7 @@ class RodBlockDelassus(_Delassus):
             sub._set_blocks(eig, Qs)
             sub._restricted, sub._sub_blocks, sub._factors, sub.factorisations, sub.rho0 = {}, {}, {}, 0, self.rho0
             sub._evicted_factorisations = 0
+            sub._block_keys, sub._inverses = keys, self._inverses
             sub.points = points
             self._restricted[key] = sub
             while len(self._restricted) > SUB_OPERATORS_KEPT:
@@ -332,17 +338,27 @@ class RodBlockDelassus(_Delassus):
             lo, hi = 3 * self._starts[a], 3 * self._starts[a + 1]
             T[3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = S[lo:hi].T @ Y[lo:hi]
         K = np.linalg.solve(np.eye(3 * self.n_rods) + self.H @ T, self.H)
-        return np.ascontiguousarray(K), np.ascontiguousarray(Y), d_inv
+        # each block's explicit inverse at this rho, for the compiled iterations (one product per rod
+        # instead of two with Q_a); a block's is shared by every sub-operator that keeps the block
+        inverses = []
+        for key, lam, Q in zip(self._block_keys, self._eig, self._Q):
+            if (key, rho) not in self._inverses:
+                self._inverses[(key, rho)] = ((Q / (lam + rho)) @ Q.T).ravel()
+                while len(self._inverses) > INVERSES_KEPT:
+                    self._inverses.pop(next(iter(self._inverses)))
+            inverses.append(self._inverses[(key, rho)])
+        inverse_flat = np.concatenate(inverses)[None, :] if inverses else np.zeros((1, 0))
+        return np.ascontiguousarray(K), np.ascontiguousarray(Y), d_inv, inverse_flat
 
     def _solve(self, factor, r, rho):
-        K, Y, d_inv = factor
+        K, Y, d_inv, _ = factor
         v = self._block_solve(d_inv, r.reshape(-1, 1))[:, 0]
         q = K @ self.rod_sum(v.reshape(-1, 3)).ravel()
         return (v - np.einsum("ij,ij->i", Y, q.reshape(-1, 3)[np.repeat(self.rod, 3)])).reshape(-1, 3)
 
     def kernel_operator(self, rung):
-        K, Y, d_inv = self._factor(rung)
-        return admm_kernels.ROD_BLOCKS, self._Q_flat, K, Y, d_inv, self._rod_int, self.n_rods
+        K, Y, d_inv, inverse_flat = self._factor(rung)
+        return admm_kernels.ROD_BLOCKS, inverse_flat, K, Y, d_inv, self._rod_int, self.n_rods
 
 
 def rod_block_compliance(blocks: list, H: np.ndarray, rod: np.ndarray) -> np.ndarray:
@@ -571,7 +587,7 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
     Returns (u_points (m, 3), :class:`StepLaw`, :class:`AdmmInfo`).
     """
     from fem.indenters import gap as indenter_gap
-    from fem.indenters import gap_normal_hessian, rigid_motion
+    from fem.indenters import gap_normal, rigid_motion
 
     kin = warm.kinematics
     if kin is None:
@@ -598,7 +614,7 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
     info = AdmmInfo()
     u = u_star
     for lin in range(max_linearisations if kin is None else max(max_linearisations, SECOND_ORDER_LINEARISATIONS)):
-        gap, n, _ = gap_normal_hessian(shape, pose, X + u_star)
+        gap, n = gap_normal(shape, pose, X + u_star)
         P_old_t = state.f_t - np.einsum("ij,ij->i", state.f_t, n)[:, None] * n  # the last tangential force in today's plane
         moved = u_prev + drag
         c = n * (gap - np.einsum("ij,ij->i", n, u_star))[:, None] - (moved - np.einsum("ij,ij->i", moved, n)[:, None] * n) - P_old_t * G.inv_k[:, None]

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["IndenterShape", "Pose", "signed_distance_local", "gap", "gap_and_normal", "gap_normal_hessian", "rigid_motion", "shape_from_scene"]
+__all__ = ["IndenterShape", "Pose", "signed_distance_local", "gap", "gap_and_normal", "gap_normal", "gap_normal_hessian", "rigid_motion", "shape_from_scene"]
 
 
 @dataclass(frozen=True)
@@ -88,6 +88,8 @@ def _capped_cylinder_z(p, radius, height, derivatives: bool = False):
     w_r = np.where(out, a / safe_o, (dr >= dz).astype(float))
     w_z = np.where(out, b / safe_o, (dr < dz).astype(float))
     grad = w_r[:, None] * e_r + w_z[:, None] * e_z
+    if derivatives == "gradient":
+        return d, grad
     # 2-D Hessian in (dr, dz): (diag(a > 0, b > 0) - w w^T) / |(a, b)| outside, zero inside
     pr, pz = (a > 0).astype(float), (b > 0).astype(float)
     h_rr = np.where(out, (pr - w_r * w_r) / safe_o, 0.0)
@@ -120,15 +122,18 @@ def _box(p, half, derivatives: bool = False):
     nearest = np.zeros((m, 3))
     nearest[np.arange(m), q.argmax(axis=1)] = 1.0
     grad = sign * np.where(out[:, None], qp / safe_o[:, None], nearest)
+    if derivatives == "gradient":
+        return d, grad
     beyond = (q > 0).astype(float)
     H = (beyond[:, :, None] * np.eye(3)[None] - grad[:, :, None] * grad[:, None, :]) / safe_o[:, None, None]
     H[~out] = 0.0
     return d, grad, H
 
 
-def signed_distance_local(shape: IndenterShape, p: np.ndarray, derivatives: bool = False):
+def signed_distance_local(shape: IndenterShape, p: np.ndarray, derivatives: bool | str = False):
     """Signed distance (M,) of points (M, 3) given in the indenter's own frame; with ``derivatives``,
-    (distance, gradient (M, 3), Hessian (M, 3, 3)), exact (analytic) wherever they are defined."""
+    (distance, gradient (M, 3), Hessian (M, 3, 3)), exact (analytic) wherever they are defined; with
+    ``derivatives="gradient"``, (distance, gradient) (the Hessian is most of the cost)."""
     p = np.asarray(p, dtype=float)
     re = shape.edge_radius_m
     if shape.kind == "flat":
@@ -144,6 +149,8 @@ def signed_distance_local(shape: IndenterShape, p: np.ndarray, derivatives: bool
         safe = np.maximum(dist, 1e-300)
         n = v / safe[:, None]
         n[dist == 0] = [0.0, 0.0, 1.0]
+        if derivatives == "gradient":
+            return dist - radius, n
         return dist - radius, n, (np.eye(3)[None] - n[:, :, None] * n[:, None, :]) / safe[:, None, None]
     elif shape.kind == "cylinder":
         radius, length = shape.size_m
@@ -152,15 +159,13 @@ def signed_distance_local(shape: IndenterShape, p: np.ndarray, derivatives: bool
         out = _capped_cylinder_z(q, radius, length, derivatives)
         if derivatives:
             perm = [2, 0, 1]  # A^T: p_x <- q_z, p_y <- q_x, p_z <- q_y
-            d, g, H = out
-            out = (d, g[:, perm], H[:, perm][:, :, perm])
+            out = (out[0], out[1][:, perm]) if derivatives == "gradient" else (out[0], out[1][:, perm], out[2][:, perm][:, :, perm])
     else:
         sx, sy, sz = shape.size_m
         out = _box(p - [0.0, 0.0, sz / 2], np.array([sx, sy, sz]) / 2 - re, derivatives)
     if not derivatives:
         return out - re
-    d, g, H = out
-    return d - re, g, H
+    return (out[0] - re, *out[1:])
 
 
 def _to_local(pose: Pose, X: np.ndarray) -> np.ndarray:
@@ -190,8 +195,17 @@ def gap(shape: IndenterShape, pose: Pose, X: np.ndarray) -> np.ndarray:
 def gap_and_normal(shape: IndenterShape, pose: Pose, X: np.ndarray):
     """Gap (M,) m and unit outward normal (3, M) of the posed indenter at points X (M, 3): the signed
     distance and its gradient, analytic (:func:`signed_distance_local`)."""
-    gap, n, _ = gap_normal_hessian(shape, pose, X)
+    gap, n = gap_normal(shape, pose, X)
     return gap, n.T
+
+
+def gap_normal(shape: IndenterShape, pose: Pose, X: np.ndarray):
+    """Gap (M,) m and unit outward normal (M, 3) of the posed indenter at points X (M, 3), in the
+    sensor frame: :func:`gap_normal_hessian` without the Hessian (a seventh of its cost)."""
+    d, g = signed_distance_local(shape, _to_local(pose, X), derivatives="gradient")
+    c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # local -> sensor frame
+    return d, g @ R.T
 
 
 def gap_normal_hessian(shape: IndenterShape, pose: Pose, X: np.ndarray):

@@ -12,15 +12,17 @@ base bottom clamped, optional gravity) and the contact on condensed compliance
   The field is exact for the discretisation, up to the penalty.
 - ``reduced``: the same contact points, and no sparse solve per frame. The precompute solves once
   per point and axis (cached per sensor) and keeps each rod's own block of the point compliance,
-  the patches' compliance (a few patches per rod tip, a few angular sectors of the side band) and,
-  per unit patch force, the centroid stress of every tet and the displacement of every vertex, plus
-  each rod's point responses beyond its patches' on its own tets and vertices. A step solves the
+  the patches' compliance (a few patches per rod tip, a few angular sectors of the side band), each
+  point's exact response (stress of the tets, displacement of the vertices) on its own rod, and the
+  patches' responses everywhere else in low-rank form (a few columns per rod: away from its own rod
+  a rod's load acts as its resultant force and moment, :func:`far_field_basis`). A step solves the
   contact on each rod's exact point compliance with the rods coupled through their resultants
-  (:class:`fem.contact_admm.RodBlockDelassus`); the fields superpose the patch resultants'
-  responses and each loaded rod's own correction. The approximations, against ``linear``: a rod
-  feels another's load as its resultant (through the base, far from the tips), and tets off the
-  loaded rod see patch resultants; on the default demo and the tiny scene's slide both cost under
-  1 % in per-rod contact force and peak stress (tests/test_tier_agreement.py).
+  (:class:`fem.contact_admm.RodBlockDelassus`); the fields superpose, on each loaded rod, its
+  points' responses and, elsewhere, its patches' far field. The approximations, against ``linear``:
+  a rod feels another's load as its resultant (through the base, far from the tips), and tets off
+  the loaded rod see patch resultants (to 1e-3 of their norm in the low-rank form); on the default
+  demo and the tiny scene's slide both cost under 1 % in per-rod contact force and peak stress
+  (tests/test_tier_agreement.py).
 
 With ``fidelity.solve.rod_kinematics = "second_order"`` (ADMM contact only) both tiers add the bent
 rods' second-order rotation terms to the contact kinematics and the displacement output, and the
@@ -99,16 +101,22 @@ def compliance(body: LinearBody, W: sp.spmatrix, block: int = 256, progress=None
 @dataclass
 class ReducedModel:
     """The ``reduced`` tier's precompute: the contact points' compliance per rod (each rod's own block,
-    exact), the patches' compliance (the rods' mutual compliance is their patches' mean), and the
-    responses to a unit force on each patch (float32): centroid stress (6 T, 3 M) and vertex
-    displacement (3 P, 3 M); plus the gravity state."""
+    exact), the patches' compliance (the rods' mutual compliance is their patches' mean), the
+    responses to a unit force on each patch away from its own rod in low-rank form (float32 bases:
+    centroid stress (6 T, K) and vertex displacement (3 P, K_d), :func:`far_field_basis`), each
+    rod's points' exact responses on its own tets and vertices; plus the gravity state."""
 
     X: np.ndarray  # (M, 3) patch centroids
     area_m2: np.ndarray  # (M,)
     rod: np.ndarray  # (M,)
     C: np.ndarray  # (3 M, 3 M) patch compliance
-    stress_response: np.ndarray  # (6 T, 3 M)
-    displacement_response: np.ndarray  # (3 P, 3 M), vertex-major (3 p + c)
+    # the patches' responses away from their own rod, per rod a few columns (far_field_basis):
+    # response (6 T, 3 M) = stress_basis.T @ stress_coeff off each rod's own rows; the bases are stored
+    # transposed, a rod's rows contiguous, so that the loaded rods' are read as one block
+    stress_basis: np.ndarray  # (K, 6 T) float32, the rods' bases one after the other
+    stress_coeff: np.ndarray  # (K, 3 M), each basis row's weights on its rod's patch columns
+    displacement_basis: np.ndarray  # (K_d, 3 P) float32, vertex-major (3 p + c)
+    displacement_coeff: np.ndarray  # (K_d, 3 M)
     stress_gravity: np.ndarray  # (6 T,)
     displacement_gravity: np.ndarray  # (3 P,)
     patch_u_gravity: np.ndarray  # (M, 3)
@@ -122,8 +130,8 @@ class ReducedModel:
     point_u_gravity: np.ndarray  # (m, 3)
     point_compliance_blocks: np.ndarray  # each rod's (3 m_a, 3 m_a) point compliance, rods ascending, raveled one after the other
     # per rod (ascending, rods >= 0 with points): what its own points' forces do to its own tets' stress
-    # and vertices' displacement beyond their patches' resultants (the point response minus the patch's),
-    # rows (6 T_a) component-major (c T + t) and (3 P_a) vertex-major, columns its points' (3 m_a)
+    # and vertices' displacement (each point's response, exact), rows (6 T_a) component-major (c T + t)
+    # and (3 P_a) vertex-major, columns its points' (3 m_a)
     local_stress_rows: np.ndarray  # concatenated row indices into the (6 T) stress
     local_displacement_rows: np.ndarray  # ... into the (3 P) displacement
     local_stress: np.ndarray  # concatenated raveled (6 T_a, 3 m_a) float32
@@ -132,7 +140,7 @@ class ReducedModel:
     element: str = "P2P1"
     seconds: dict = field(default_factory=dict)
 
-    _ARRAYS = ("X", "area_m2", "rod", "C", "stress_response", "displacement_response", "stress_gravity", "displacement_gravity",
+    _ARRAYS = ("X", "area_m2", "rod", "C", "stress_basis", "stress_coeff", "displacement_basis", "displacement_coeff", "stress_gravity", "displacement_gravity",
                "patch_u_gravity", "weight_n", "lam", "mu", "point_X", "point_area_m2", "point_patch", "point_rod", "point_u_gravity",
                "point_compliance_blocks", "local_stress_rows", "local_displacement_rows", "local_stress", "local_displacement", "local_sizes")
 
@@ -154,8 +162,8 @@ class ReducedModel:
         return out
 
     def local_responses(self) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-        """Per rod: (stress rows, stress correction (6 T_a, 3 m_a), displacement rows, displacement
-        correction (3 P_a, 3 m_a)), its points in ascending index order."""
+        """Per rod: (stress rows, its points' stress response there (6 T_a, 3 m_a), displacement rows,
+        their displacement response there (3 P_a, 3 m_a)), its points in ascending index order."""
         out, o_s, o_d, r_s, r_d = {}, 0, 0, 0, 0
         for r, n_s, n_d in self.local_sizes:
             n_c = 3 * int(np.sum(self.point_rod == r))
@@ -226,14 +234,14 @@ class ReducedModel:
             if progress is not None:
                 progress(min(s + block, n_cols), n_cols)
         blocks = {r: 0.5 * (B + B.T) for r, B in blocks.items()}
-        for r, (ls, ld) in local.items():  # the point responses beyond their patches'
-            idx = np.flatnonzero(point_rod == r)
-            pc = (3 * patches[idx][:, None] + np.arange(3)).ravel()
-            ls -= stress[np.ix_(local_rows[r][0], pc)]
-            ld -= disp[np.ix_(local_rows[r][1], pc)]
         rods_local = sorted(local)
+        own_s = {r: rows[0] for r, rows in local_rows.items()}
+        own_d = {r: rows[1] for r, rows in local_rows.items()}
+        stress_basis, stress_coeff = far_field_basis(stress, rod, own_s)
+        disp_basis, disp_coeff = far_field_basis(disp, rod, own_d)
+        del stress, disp
         xg = body.x_gravity
-        return cls(X, area, rod, 0.5 * (C_patch + C_patch.T), stress, disp, (body.S @ xg), xg[vdofs], (Wp.T @ xg).reshape(M, 3),
+        return cls(X, area, rod, 0.5 * (C_patch + C_patch.T), stress_basis, stress_coeff, disp_basis, disp_coeff, (body.S @ xg), xg[vdofs], (Wp.T @ xg).reshape(M, 3),
                    body.weight_n(), body.lam, body.mu, points.X.copy(), points.area_m2.copy(), np.asarray(patches).copy(), point_rod.copy(),
                    (Wd.T @ xg).reshape(-1, 3), np.concatenate([blocks[r].ravel() for r in sorted(blocks)]),
                    _concat([local_rows[r][0] for r in rods_local], int), _concat([local_rows[r][1] for r in rods_local], int),
@@ -242,18 +250,59 @@ class ReducedModel:
                    {"precompute": time.perf_counter() - t0})
 
 
+# The patches' responses away from their own rod are of low rank: a rod's tip loads reach its base, and
+# from there every other tet and vertex, as the rod's resultant force and moment (Saint-Venant), six
+# numbers. Default sensor, 2 mm mesh, P2P1, a rod's 21 patch columns (7 patches): the stress away
+# from the rod's own tets has a relative Frobenius tail of 1.1e-2 at rank 5 and 2.6e-4 at rank 6, and
+# its largest entry error at rank 6 is 2e-4 of the rod's largest response. The basis keeps the
+# rank whose tail is below FAR_FIELD_RTOL; the field recovery reads 6-7 columns per loaded rod instead
+# of 21 (each rod's own tets and vertices keep their exact point responses).
+FAR_FIELD_RTOL = 1e-3
+
+
+def far_field_basis(response: np.ndarray, patch_rod: np.ndarray, own_rows: dict, rtol: float = FAR_FIELD_RTOL) -> tuple[np.ndarray, np.ndarray]:
+    """A low-rank form of the patch responses away from each patch's own rod.
+
+    response (n, 3 M) float32: each patch's response to a unit force along each axis (rows: tets'
+    stress components or vertices' displacements); patch_rod (M,) each patch's rod; own_rows
+    {rod: row indices} the rows of each rod's own tets or vertices.
+
+    Per rod a, with A_a its patches' columns and its own rows set to zero: the truncated SVD
+    A_a = U S V^T to the smallest rank whose relative Frobenius tail is at most ``rtol``. Returns
+    (basis (K, n) float32 = the (U S)^T of the rods one after the other, coeff (K, 3 M) = each basis
+    vector's V^T on its own rod's columns, zero elsewhere): basis^T @ coeff is the response on every
+    row but the loaded rod's own, where it is zero. The basis is returned transposed, (K, n)
+    C-contiguous: a rod's columns are then one contiguous block of memory."""
+    rods = np.unique(patch_rod)
+    bases, coeffs = [], []
+    n_cols = response.shape[1]
+    for a in rods:
+        cols = (3 * np.flatnonzero(patch_rod == a)[:, None] + np.arange(3)).ravel()
+        A = response[:, cols].astype(float)
+        A[own_rows.get(int(a), np.zeros(0, dtype=int))] = 0.0
+        U, S, Vt = np.linalg.svd(A, full_matrices=False)
+        tail = np.sqrt(np.cumsum((S**2)[::-1])[::-1])  # tail[k]: the Frobenius norm left out at rank k
+        total = tail[0] if len(tail) else 0.0
+        k = int(np.argmax(np.r_[tail, 0.0] <= rtol * total)) if total > 0 else 0
+        B = U[:, :k] * S[:k]
+        B[own_rows.get(int(a), np.zeros(0, dtype=int))] = 0.0  # zero there, not LAPACK's round-off
+        bases.append(B.astype(np.float32))
+        c = np.zeros((k, n_cols))
+        c[:, cols] = Vt[:k]
+        coeffs.append(c)
+    return (np.ascontiguousarray(np.concatenate(bases, axis=1).T) if bases else np.zeros((0, response.shape[0]), np.float32),
+            np.concatenate(coeffs, axis=0) if coeffs else np.zeros((0, n_cols)))
+
+
+def _nonzero_runs(nonzero: np.ndarray) -> list[tuple[int, int]]:
+    """Index ranges [lo, hi) of the runs of True in ``nonzero``."""
+    edges = np.flatnonzero(np.diff(np.r_[0, nonzero.astype(np.int8), 0]))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+
+
 # ------------------------------------------------------------------------------------ an episode
 def _pose(state: trajectory.IndenterState) -> Pose:
     return Pose(tuple(state.position_m), state.yaw_rad)
-
-
-def _loaded_column_runs(patch_rod: np.ndarray, loaded_columns: np.ndarray) -> list[tuple[int, int]]:
-    """Column ranges [lo, hi) of the patch responses (3 per patch) covering every loaded column:
-    the patches of each rod with a load (patches are numbered rod by rod), adjacent rods merged."""
-    loaded_patch = loaded_columns.reshape(-1, 3).any(axis=1)
-    rod_loaded = np.isin(patch_rod, np.unique(patch_rod[loaded_patch]))
-    edges = np.flatnonzero(np.diff(np.r_[0, rod_loaded.astype(np.int8), 0]))
-    return [(3 * int(a), 3 * int(b)) for a, b in zip(edges[::2], edges[1::2])]
 
 
 def _concat(arrays: list, dtype) -> np.ndarray:
@@ -342,11 +391,11 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         if second_order:
             t_k = time.perf_counter()
             sections = _rod_sections(scene, mesh, rod, setup.tip_z_m)
-            # the sections' response to each point's force as the vertices see it: its patch's resultant
-            # response plus, on its own rod, its own correction (the displacement field's rule below)
+            # the sections' response to each point's force as the vertices see it: its patch's far-field
+            # response plus, on its own rod, its own exact response (the displacement field's rule below)
             cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
             O = sections.O.tocsc()
-            A = np.asarray(O @ reduced.displacement_response[:, cols], dtype=float)
+            A = np.asarray((O @ reduced.displacement_basis.T) @ reduced.displacement_coeff[:, cols], dtype=float)
             for r, (_, _, rows_d, corr_d) in reduced.local_responses().items():
                 on_rod = np.flatnonzero(rod == r)
                 if len(on_rod):
@@ -511,18 +560,20 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     first, frame_of = _distinct_rows(loads.reshape(S, -1))
     U = len(first)
     if settings.tier == "reduced":
-        # (M, U) the points' loads summed per patch, zero away from the loaded rods
+        # (3 M, U) the points' loads summed per patch, zero away from the loaded rods; away from each rod's
+        # own tets and vertices its patches' loads act through its few far-field columns (far_field_basis)
         patch_cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
-        to_patches = sp.csr_matrix((np.ones(3 * m), (patch_cols, np.arange(3 * m))), shape=(reduced.stress_response.shape[1], 3 * m))
-        Fp = (to_patches @ loads[first].reshape(U, 3 * m).T).astype(np.float32)
-        stress = np.broadcast_to(reduced.stress_gravity, (U, len(reduced.stress_gravity))).copy()
-        disp = np.broadcast_to(reduced.displacement_gravity, (U, len(reduced.displacement_gravity))).copy()
-        # the responses' columns of loaded patches only, as views (patches are numbered rod by rod:
-        # a run of loaded rods is one block of columns; gathering columns would copy the response)
-        for lo, hi in _loaded_column_runs(reduced.rod, np.any(Fp != 0, axis=1)):
-            stress += (reduced.stress_response[:, lo:hi] @ Fp[lo:hi]).T
-            disp += (reduced.displacement_response[:, lo:hi] @ Fp[lo:hi]).T
-        # each rod's own tets and vertices: its points' forces as they are, not as patch resultants
+        to_patches = sp.csr_matrix((np.ones(3 * m), (patch_cols, np.arange(3 * m))), shape=(reduced.stress_coeff.shape[1], 3 * m))
+        Fp = to_patches @ loads[first].reshape(U, 3 * m).T
+        # float32 sums (the fields are stored as float32; the responses are float32)
+        stress = np.broadcast_to(reduced.stress_gravity.astype(np.float32), (U, len(reduced.stress_gravity))).copy()
+        disp = np.broadcast_to(reduced.displacement_gravity.astype(np.float32), (U, len(reduced.displacement_gravity))).copy()
+        for basis_t, coeff, out in ((reduced.stress_basis, reduced.stress_coeff, stress), (reduced.displacement_basis, reduced.displacement_coeff, disp)):
+            c = (coeff @ Fp).astype(np.float32)  # (K, U), zero on the unloaded rods' columns
+            # the loaded rods' basis rows: a run of loaded rods is one contiguous block of the (K, n) basis
+            for lo, hi in _nonzero_runs(np.any(c != 0, axis=1)):
+                out += c[lo:hi].T @ basis_t[lo:hi]
+        # each rod's own tets and vertices: its points' responses to their forces, exact
         for r, (rows_s, corr_s, rows_d, corr_d) in reduced.local_responses().items():
             on_rod = np.flatnonzero(rod == r)
             if not len(on_rod):
@@ -533,8 +584,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             f_r = np.zeros((len(all_on_rod), 3, U), dtype=np.float32)
             f_r[local] = np.moveaxis(loads[first][:, on_rod], 0, -1)
             f_r = f_r.reshape(-1, U)
-            stress[:, rows_s] += (corr_s @ f_r).T
-            disp[:, rows_d] += (corr_d @ f_r).T
+            stress[:, rows_s] += f_r.T @ corr_s.T
+            disp[:, rows_d] += f_r.T @ corr_d.T
         stress, disp = stress.reshape(U, 6, T), disp.reshape(U, -1, 3)
         total = forces.sum(axis=1)
         reaction = -(total + reduced.weight_n)

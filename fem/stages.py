@@ -129,8 +129,9 @@ def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
     """The reduced tier's precompute, keyed on the mesh and the body (not the load)."""
     from fem.quasistatic import build_reduced
 
-    # 3: each rod's point compliance and local responses (fem.contact_admm.RodBlockDelassus)
-    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(BODY_FIELDS), "version": "3"}
+    # 3: each rod's point compliance and local responses (fem.contact_admm.RodBlockDelassus);
+    # 4: the patch responses off their own rod in low-rank form (fem.quasistatic.far_field_basis)
+    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(BODY_FIELDS), "version": "4"}
     return cached_precompute(ctx, REDUCED_MODEL, payload, lambda: build_reduced(scene, mesh),
                               "[solve] reduced tier: precomputing the contact points' compliance and responses (cached for this sensor)")
 
@@ -270,7 +271,7 @@ SOLVE = Stage(
     doc="quasi-static FEM of the rods under the scene's load, per frame; writes a VTU time series, forces CSV and plot",
     reads=BODY_FIELDS + ("load", "camera.fps", "fidelity.solve", "fidelity.mesh.edge_length_mm"),
     needs=("mesh",),
-    version="4",  # 2: the reduced tier's contact on each rod's point compliance; 3: its rod sections observed exactly; 4: the nonlinear tier's condensed Newton (issue 15)
+    version="5",  # 2: the reduced tier's contact on each rod's point compliance; 3: its rod sections observed exactly; 4: the nonlinear tier's condensed Newton; 5: the reduced tier's contact point by point and its far field in low rank (issue 15)
     run=_solve_run,
     save=_solve_save,
     load=_solve_load,

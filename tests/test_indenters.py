@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fem.indenters import IndenterShape, Pose, gap_and_normal, gap_normal_hessian, shape_from_scene, signed_distance_local
+from fem.indenters import IndenterShape, Pose, gap_and_normal, gap_normal, gap_normal_hessian, shape_from_scene, signed_distance_local
 from mlsim.scene import scene_from_dict
 
 SHAPES = [
@@ -86,6 +86,22 @@ def test_analytic_gradient_and_hessian_match_finite_differences(shape):
         out = gap > 0
         expect = (np.eye(3) - n[out, :, None] * n[out, None, :]) / (gap[out] + shape.size_m[0])[:, None, None]
         np.testing.assert_allclose(H[out], expect, rtol=1e-10, atol=1e-6)
+
+
+@pytest.mark.parametrize("shape", SHAPES + [IndenterShape("flat", (12.6e-3, 5e-3), 0.5e-3), IndenterShape("box", (4e-3, 6e-3, 3e-3), 0.3e-3)],
+                         ids=lambda s: f"{s.kind}-{s.edge_radius_m}")
+def test_the_gap_and_normal_without_the_hessian_are_the_same(shape):
+    """gap_normal (the contact steps' call) gives gap_normal_hessian's gap and normal exactly, rounded
+    edges included, in a yawed pose, inside and outside the solid."""
+    rng = np.random.default_rng(5)
+    scale = min(max(shape.size_m[:2]), 10e-3)  # the screw's 160 mm: stay near its middle
+    pose = Pose((1e-3, -2e-3, 0.5e-3), yaw_rad=0.7)
+    X = rng.uniform(-1.5, 1.5, (400, 3)) * scale
+    d, n = gap_normal(shape, pose, X)
+    d_ref, n_ref, _ = gap_normal_hessian(shape, pose, X)
+    assert (d < 0).any() and (d > 0).any()
+    np.testing.assert_array_equal(d, d_ref)
+    np.testing.assert_array_equal(n, n_ref)
 
 
 def test_pose_translation_and_yaw():

@@ -195,3 +195,39 @@ def test_stiff_sensors_in_a_frictional_episode_converge_finite_and_in_equilibriu
         # all three layers are SC37 here, so only the mesh differs (the punch's rim crosses the
         # coarse tips: mesh-sensitive); the thin layer itself must not upset the solve
         assert ratio == pytest.approx(1.0, abs=0.2)
+
+
+def test_the_far_field_basis_keeps_the_low_rank_response_off_each_rods_own_rows():
+    """fem.quasistatic.far_field_basis: per rod, the response off its own rows to the tolerance in
+    the Frobenius norm, zero on its own rows, with the rank of the far field (three here, under a
+    tail of 1e-5), and each basis vector weighting its own rod's columns only."""
+    rng = np.random.default_rng(3)
+    n, patch_rod = 400, np.repeat([0, 1, 2], [4, 2, 3])
+    cols = {a: (3 * np.flatnonzero(patch_rod == a)[:, None] + np.arange(3)).ravel() for a in range(3)}
+    own = {0: np.arange(0, 30), 1: np.arange(30, 80), 2: np.arange(80, 100)}
+    response = np.zeros((n, 3 * len(patch_rod)))
+    for a, c in cols.items():
+        response[:, c] = rng.standard_normal((n, 3)) @ rng.standard_normal((3, len(c))) + 1e-6 * rng.standard_normal((n, len(c)))
+        response[np.ix_(own[a], c)] = rng.standard_normal((len(own[a]), len(c)))  # full rank on its own rows
+    basis, coeff = qs.far_field_basis(response.astype(np.float32), patch_rod, own, rtol=1e-4)
+    assert basis.shape == (9, n) and coeff.shape == (9, 3 * len(patch_rod)) and basis.dtype == np.float32
+    approx = basis.T.astype(float) @ coeff
+    for a, c in cols.items():
+        far = response[:, c].copy()
+        far[own[a]] = 0.0
+        assert np.linalg.norm(approx[:, c] - far) <= 1e-4 * np.linalg.norm(far)
+        np.testing.assert_array_equal(approx[np.ix_(own[a], c)], 0.0)
+        rows = slice(3 * a, 3 * a + 3)  # the rods' bases one after the other
+        np.testing.assert_array_equal(np.delete(coeff[rows], c, axis=1), 0.0)
+
+
+def test_a_rods_load_reaches_the_rest_of_the_sensor_as_its_resultant(tiny_mesh, body):
+    """Saint-Venant on the reduced tier's precompute: away from its own tets a rod's patch loads act
+    through about six far-field vectors (the rod's resultant force and moment: 5-7 to 1e-3 of their
+    norm), however many patch columns it has."""
+    scene, _, mesh, _ = tiny_mesh
+    red = qs.build_reduced(scene, mesh, body, qs.SolveSettings(tier="reduced", gravity=False))
+    per_rod = np.array([np.sum(np.any(red.stress_coeff[:, (3 * np.flatnonzero(red.rod == r)[:, None] + np.arange(3)).ravel()] != 0, axis=1))
+                        for r in np.unique(red.rod)])
+    assert per_rod.sum() == len(red.stress_coeff)  # each basis vector belongs to one rod
+    assert np.all((per_rod >= 5) & (per_rod <= 7)), per_rod
