@@ -329,26 +329,26 @@ class RodBlockDelassus(_Delassus):
         return out
 
     def _factorise(self, rho):
-        d_inv = 1.0 / (self.eigenvalues + rho)
-        S = np.zeros((3 * self.m, 3))
-        S[np.arange(3 * self.m), np.tile(np.arange(3), self.m)] = 1.0
-        Y = self._block_solve(d_inv, S)  # (3 m, 3): B^-1 S, each rod's rows its own block's
+        # per block, once per rho (shared by every sub-operator that keeps the block): its explicit
+        # inverse B_a^-1 (the compiled iterations take one product per rod with it instead of two with
+        # Q_a), Y_a = B_a^-1 S_a (S_a sums the block's point forces per axis) and S_a^T Y_a
+        Ys, inverses = [], []
         T = np.zeros((3 * self.n_rods, 3 * self.n_rods))
-        for a in range(self.n_rods):
-            lo, hi = 3 * self._starts[a], 3 * self._starts[a + 1]
-            T[3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = S[lo:hi].T @ Y[lo:hi]
-        K = np.linalg.solve(np.eye(3 * self.n_rods) + self.H @ T, self.H)
-        # each block's explicit inverse at this rho, for the compiled iterations (one product per rod
-        # instead of two with Q_a); a block's is shared by every sub-operator that keeps the block
-        inverses = []
-        for key, lam, Q in zip(self._block_keys, self._eig, self._Q):
+        for a, (key, lam, Q) in enumerate(zip(self._block_keys, self._eig, self._Q)):
             if (key, rho) not in self._inverses:
-                self._inverses[(key, rho)] = ((Q / (lam + rho)) @ Q.T).ravel()
+                B_inv = (Q / (lam + rho)) @ Q.T
+                Y_a = np.stack([B_inv[:, c::3].sum(axis=1) for c in range(3)], axis=1)
+                self._inverses[(key, rho)] = (B_inv.ravel(), Y_a, np.stack([Y_a[c::3].sum(axis=0) for c in range(3)]))
                 while len(self._inverses) > INVERSES_KEPT:
                     self._inverses.pop(next(iter(self._inverses)))
-            inverses.append(self._inverses[(key, rho)])
+            B_flat, Y_a, T_a = self._inverses[(key, rho)]
+            inverses.append(B_flat)
+            Ys.append(Y_a)
+            T[3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = T_a
+        K = np.linalg.solve(np.eye(3 * self.n_rods) + self.H @ T, self.H)
+        Y = np.concatenate(Ys) if Ys else np.zeros((0, 3))
         inverse_flat = np.concatenate(inverses)[None, :] if inverses else np.zeros((1, 0))
-        return np.ascontiguousarray(K), np.ascontiguousarray(Y), d_inv, inverse_flat
+        return np.ascontiguousarray(K), np.ascontiguousarray(Y), 1.0 / (self.eigenvalues + rho), inverse_flat
 
     def _solve(self, factor, r, rho):
         K, Y, d_inv, _ = factor
