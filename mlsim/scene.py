@@ -920,9 +920,12 @@ def _split_path(path: str) -> list:
             if head:
                 parts.append(head)
             index, _, token = rest.partition("]")
-            parts.append(int(index))
+            try:
+                parts.append(int(index))
+            except ValueError:
+                raise SceneError([Problem(path, index, "a list index in brackets must be an integer, e.g. load.segments[0].speed_mm_s")]) from None
         if token:
-            parts.append(token)
+            parts.append(int(token) if token.isdigit() else token)  # load.segments.2 means load.segments[2]
     return parts
 
 
@@ -935,15 +938,22 @@ def _join_path(parts: list) -> str:
 
 def _set_path(data: dict, parts: list, value, dotted: str) -> None:
     node = data
-    for part in parts[:-1]:
-        if isinstance(part, int):
-            node = node[part]
+    for i, part in enumerate(parts):
+        where = _join_path(parts[:i])
+        if isinstance(node, list):
+            if not isinstance(part, int):
+                raise SceneError([Problem(dotted, value, f"{where} is a list: index it, e.g. {where}[0].{part}")])
+            if not -len(node) <= part < len(node):
+                raise SceneError([Problem(dotted, value, f"index {part} is out of range: {where} has {len(node)} entries")])
+        elif isinstance(node, dict):
+            if isinstance(part, int):
+                raise SceneError([Problem(dotted, value, f"{where or 'the scene'} is a section, not a list: name a field, not an index")])
         else:
-            node = node.setdefault(part, {})
-        if not isinstance(node, (dict, list)):
             raise SceneError([Problem(dotted, value, "is not a field (its parent is a value, not a section)")])
-    last = parts[-1]
-    node[last] = value
+        if i == len(parts) - 1:
+            node[part] = value
+        else:
+            node = node[part] if isinstance(node, list) else node.setdefault(part, {})
 
 
 def _flatten(node, prefix: str, out: dict) -> None:

@@ -35,6 +35,23 @@ def test_shipped_scenes_load_with_spec_values():
     assert tiny.sensor.size_x_mm == pytest.approx(14.4)
 
 
+def test_overrides_index_lists_either_way_and_bad_paths_say_how_to_fix():
+    """``--set load.segments.2.speed_mm_s=...`` means ``load.segments[2]``; a list left unindexed, an
+    index out of range or not an integer, and an index into a section are refused naming the path."""
+    a = load_scene(DEFAULT, overrides={"load.segments.2.speed_mm_s": 100.0})
+    b = load_scene(DEFAULT, overrides={"load.segments[2].speed_mm_s": 100.0})
+    assert a.get("load.segments[2].speed_mm_s") == 100.0 and a.content_hash() == b.content_hash()
+    cases = {
+        "load.segments.speed_mm_s": r"load\.segments is a list: index it, e.g. load\.segments\[0\]\.speed_mm_s",
+        "load.segments.9.speed_mm_s": r"index 9 is out of range: load\.segments has 5 entries",
+        "load.segments[x].speed_mm_s": r"must be an integer",
+        "sensor.rod[0]": r"sensor\.rod is a section, not a list",
+    }
+    for path, message in cases.items():
+        with pytest.raises(SceneError, match=message):
+            load_scene(DEFAULT, overrides={path: 1.0})
+
+
 def test_scene_is_frozen_and_with_values_returns_a_new_valid_scene():
     scene = load_scene(DEFAULT)
     with pytest.raises(Exception):
