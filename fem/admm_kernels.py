@@ -52,7 +52,7 @@ def _rod_end(rod, start):
 
 
 @njit(cache=True)
-def _solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
+def solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
     """(G + rho I)^-1 r, r (m, 3). EIGEN (:class:`fem.contact_admm.DenseDelassus`): Q diag(d_inv) Q^T r,
     ``inverse`` = Q, d_inv = 1 / (lambda + rho). ROD_BLOCKS (:class:`fem.contact_admm.RodBlockDelassus`,
     the points rod by rod, ``rod`` (m,) their rod 0 .. n_rods - 1): each rod's block inverse
@@ -60,7 +60,7 @@ def _solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
     after the other, row-major; one product per rod instead of two with Q_a: the default demo's
     11 tips of 93 unknowns, 13 instead of 26 us), then Woodbury on the rods' resultants:
     x = v - Y K S^T v, v the block solve, S^T the sum per rod, Y (3 m, 3) the block solves of S,
-    K (3 R, 3 R)."""
+    K (3 R, 3 R); d_inv unused. Also :meth:`fem.contact_admm.RodBlockDelassus._solve`'s arithmetic."""
     m = r.shape[0]
     if mode == EIGEN:  # both products with Q (Q^T r as r^T Q: one matrix stays in cache, where Q and a
         # copy of Q^T took 1.6 x as long)
@@ -101,7 +101,7 @@ def _step(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, y2, z
     for i in range(m):
         for c in range(3):
             rhs[i, c] = rho * y[i, c] - z[i, c] - b[i, c] - s[i, c]
-    x = _solve(mode, inverse, K, Y, d_inv, rod, n_rods, rhs)
+    x = solve(mode, inverse, K, Y, d_inv, rod, n_rods, rhs)
     primal = 0.0
     dual = 0.0
     y_max = 0.0

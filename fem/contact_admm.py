@@ -93,7 +93,18 @@ SUB_BLOCKS_KEPT = 1024  # diagonalised sub-blocks kept per operator
 INVERSES_KEPT = 512  # the blocks' explicit inverses, per rho, kept per operator (a tip's: 93^2 doubles)
 
 
-_EMPTY_2D, _EMPTY_INT = np.zeros((0, 0)), np.zeros(0, dtype=np.int64)
+_EMPTY_1D, _EMPTY_2D, _EMPTY_INT = np.zeros(0), np.zeros((0, 0)), np.zeros(0, dtype=np.int64)
+
+
+def _kept(cache: dict, key, make, limit: int):
+    """cache[key], made by make() if missing; the oldest entries beyond ``limit`` are dropped (returned
+    as a list, for their counts)."""
+    if key not in cache:
+        cache[key] = make()
+    dropped = []
+    while len(cache) > limit:
+        dropped.append(cache.pop(next(iter(cache))))
+    return cache[key], dropped
 
 
 class _Delassus:
@@ -244,7 +255,6 @@ class RodBlockDelassus(_Delassus):
     def _set_blocks(self, eig: list, Qs: list) -> None:
         self._C_flat = np.ascontiguousarray(np.concatenate([C.ravel() for C in self.blocks]) if self.blocks else np.zeros(0))
         self._eig, self._Q = eig, Qs
-        self.eigenvalues = np.concatenate(eig) if eig else np.zeros(0)
         self._rod_int = np.ascontiguousarray(self.rod, dtype=np.int64)
 
     def restrict(self, rods: np.ndarray) -> "RodBlockDelassus":
@@ -278,16 +288,7 @@ class RodBlockDelassus(_Delassus):
                 local = mine - self._starts[a]
                 sub_key = (self._block_keys[a], local.tobytes())
                 keys.append(sub_key)
-                if sub_key not in self._sub_blocks:
-                    idx = (3 * local[:, None] + np.arange(3)).ravel()
-                    C = np.ascontiguousarray(self.blocks[a][np.ix_(idx, idx)])
-                    B = 0.5 * (C + C.T)
-                    B[np.diag_indices_from(B)] += np.repeat(self.inv_k[mine], 3)
-                    lam, Q = np.linalg.eigh(B)
-                    self._sub_blocks[sub_key] = (C, lam, Q)
-                    while len(self._sub_blocks) > SUB_BLOCKS_KEPT:
-                        self._sub_blocks.pop(next(iter(self._sub_blocks)))
-                C, lam, Q = self._sub_blocks[sub_key]
+                (C, lam, Q), _ = _kept(self._sub_blocks, sub_key, lambda: self._sub_block(a, local), SUB_BLOCKS_KEPT)
                 blocks.append(C)
                 eig.append(lam)
                 Qs.append(Q)
@@ -304,10 +305,19 @@ class RodBlockDelassus(_Delassus):
             sub._evicted_factorisations = 0
             sub._block_keys, sub._inverses = keys, self._inverses
             sub.points = points
-            self._restricted[key] = sub
-            while len(self._restricted) > SUB_OPERATORS_KEPT:
-                self._evicted_factorisations += self._restricted.pop(next(iter(self._restricted))).factorisations
+            _, dropped = _kept(self._restricted, key, lambda: sub, SUB_OPERATORS_KEPT)
+            self._evicted_factorisations += sum(d.factorisations for d in dropped)
         return self._restricted[key]
+
+    def _sub_block(self, a: int, local: np.ndarray) -> tuple:
+        """Rod a's block on its points ``local`` (indices within the rod): (C (3 k, 3 k), eigenvalues
+        and eigenvectors of C + diag(1/k))."""
+        idx = (3 * local[:, None] + np.arange(3)).ravel()
+        C = np.ascontiguousarray(self.blocks[a][np.ix_(idx, idx)])
+        B = 0.5 * (C + C.T)
+        B[np.diag_indices_from(B)] += np.repeat(self.inv_k[self._starts[a] + local], 3)
+        lam, Q = np.linalg.eigh(B)
+        return C, lam, Q
 
     @property
     def all_factorisations(self) -> int:
@@ -321,13 +331,6 @@ class RodBlockDelassus(_Delassus):
     def elastic(self, f):
         return admm_kernels.rod_block_product(self._C_flat, self.H, self._rod_int, self.n_rods, np.ascontiguousarray(f, dtype=float))
 
-    def _block_solve(self, d_inv_all, r):
-        out = np.empty_like(r)
-        for a, Q in enumerate(self._Q):
-            lo, hi = 3 * self._starts[a], 3 * self._starts[a + 1]
-            out[lo:hi] = Q @ (d_inv_all[lo:hi, None] * (Q.T @ r[lo:hi]))
-        return out
-
     def _factorise(self, rho):
         # per block, once per rho (shared by every sub-operator that keeps the block): its explicit
         # inverse B_a^-1 (the compiled iterations take one product per rod with it instead of two with
@@ -335,30 +338,31 @@ class RodBlockDelassus(_Delassus):
         Ys, inverses = [], []
         T = np.zeros((3 * self.n_rods, 3 * self.n_rods))
         for a, (key, lam, Q) in enumerate(zip(self._block_keys, self._eig, self._Q)):
-            if (key, rho) not in self._inverses:
-                B_inv = (Q / (lam + rho)) @ Q.T
-                Y_a = np.stack([B_inv[:, c::3].sum(axis=1) for c in range(3)], axis=1)
-                self._inverses[(key, rho)] = (B_inv.ravel(), Y_a, np.stack([Y_a[c::3].sum(axis=0) for c in range(3)]))
-                while len(self._inverses) > INVERSES_KEPT:
-                    self._inverses.pop(next(iter(self._inverses)))
-            B_flat, Y_a, T_a = self._inverses[(key, rho)]
+            (B_flat, Y_a, T_a), _ = _kept(self._inverses, (key, rho), lambda: _block_inverse(lam, Q, rho), INVERSES_KEPT)
             inverses.append(B_flat)
             Ys.append(Y_a)
             T[3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = T_a
         K = np.linalg.solve(np.eye(3 * self.n_rods) + self.H @ T, self.H)
         Y = np.concatenate(Ys) if Ys else np.zeros((0, 3))
         inverse_flat = np.concatenate(inverses)[None, :] if inverses else np.zeros((1, 0))
-        return np.ascontiguousarray(K), np.ascontiguousarray(Y), 1.0 / (self.eigenvalues + rho), inverse_flat
+        return np.ascontiguousarray(K), np.ascontiguousarray(Y), inverse_flat
 
     def _solve(self, factor, r, rho):
-        K, Y, d_inv, _ = factor
-        v = self._block_solve(d_inv, r.reshape(-1, 1))[:, 0]
-        q = K @ self.rod_sum(v.reshape(-1, 3)).ravel()
-        return (v - np.einsum("ij,ij->i", Y, q.reshape(-1, 3)[np.repeat(self.rod, 3)])).reshape(-1, 3)
+        K, Y, inverse_flat = factor
+        return admm_kernels.solve(admm_kernels.ROD_BLOCKS, inverse_flat, K, Y, _EMPTY_1D, self._rod_int, self.n_rods, np.ascontiguousarray(r, dtype=float))
 
     def kernel_operator(self, rung):
-        K, Y, d_inv, inverse_flat = self._factor(rung)
-        return admm_kernels.ROD_BLOCKS, inverse_flat, K, Y, d_inv, self._rod_int, self.n_rods
+        K, Y, inverse_flat = self._factor(rung)
+        return admm_kernels.ROD_BLOCKS, inverse_flat, K, Y, _EMPTY_1D, self._rod_int, self.n_rods
+
+
+def _block_inverse(lam: np.ndarray, Q: np.ndarray, rho: float) -> tuple:
+    """A rod block's pieces at rho from its eigendecomposition B = Q diag(lam) Q^T: (B + rho I)^-1
+    raveled, Y_a = (B + rho I)^-1 S_a (3 k, 3) with S_a summing the block's point forces per axis,
+    and S_a^T Y_a (3, 3)."""
+    B_inv = (Q / (lam + rho)) @ Q.T
+    Y_a = np.stack([B_inv[:, c::3].sum(axis=1) for c in range(3)], axis=1)
+    return B_inv.ravel(), Y_a, np.stack([Y_a[c::3].sum(axis=0) for c in range(3)])
 
 
 def rod_block_compliance(blocks: list, H: np.ndarray, rod: np.ndarray) -> np.ndarray:
@@ -539,7 +543,7 @@ def admm_on_touching_rods(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float,
     # episode is on (default demo, first release step: leaving them out released a rod that the
     # converged warm-started solve keeps at 0.66 N)
     wanted = (np.einsum("ij,ij->i", b, n) < 0.0) | np.any(f != 0.0, axis=1)
-    sizes = np.bincount(G.rod, minlength=G.n_rods)
+    sizes = np.diff(G._starts)
     used = 0
     while True:
         per_rod = np.bincount(G.rod[wanted], minlength=G.n_rods)

@@ -203,8 +203,7 @@ def gap_normal(shape: IndenterShape, pose: Pose, X: np.ndarray):
     """Gap (M,) m and unit outward normal (M, 3) of the posed indenter at points X (M, 3), in the
     sensor frame: :func:`gap_normal_hessian` without the Hessian (a seventh of its cost)."""
     d, g = signed_distance_local(shape, _to_local(pose, X), derivatives="gradient")
-    c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # local -> sensor frame
+    R = _to_sensor(pose)
     return d, g @ R.T
 
 
@@ -216,9 +215,14 @@ def gap_normal_hessian(shape: IndenterShape, pose: Pose, X: np.ndarray):
     rounded edge meets a face; all exact, where finite differences straddling such a jump are right on
     neither side."""
     d, g, H = signed_distance_local(shape, _to_local(pose, X), derivatives=True)
-    c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # local -> sensor frame
+    R = _to_sensor(pose)
     return d, g @ R.T, R @ H @ R.T
+
+
+def _to_sensor(pose: Pose) -> np.ndarray:
+    """The rotation (3, 3) from the indenter's frame to the sensor frame (its yaw about z)."""
+    c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def shape_from_scene(indenter) -> IndenterShape:

@@ -278,14 +278,15 @@ def far_field_basis(response: np.ndarray, patch_rod: np.ndarray, own_rows: dict,
     n_cols = response.shape[1]
     for a in rods:
         cols = (3 * np.flatnonzero(patch_rod == a)[:, None] + np.arange(3)).ravel()
+        own = own_rows.get(int(a), np.zeros(0, dtype=int))
         A = response[:, cols].astype(float)
-        A[own_rows.get(int(a), np.zeros(0, dtype=int))] = 0.0
+        A[own] = 0.0
         U, S, Vt = np.linalg.svd(A, full_matrices=False)
         tail = np.sqrt(np.cumsum((S**2)[::-1])[::-1])  # tail[k]: the Frobenius norm left out at rank k
         total = tail[0] if len(tail) else 0.0
         k = int(np.argmax(np.r_[tail, 0.0] <= rtol * total)) if total > 0 else 0
         B = U[:, :k] * S[:k]
-        B[own_rows.get(int(a), np.zeros(0, dtype=int))] = 0.0  # zero there, not LAPACK's round-off
+        B[own] = 0.0  # zero there, not LAPACK's round-off
         bases.append(B.astype(np.float32))
         c = np.zeros((k, n_cols))
         c[:, cols] = Vt[:k]
@@ -396,11 +397,11 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
             O = sections.O.tocsc()
             A = np.asarray((O @ reduced.displacement_basis.T) @ reduced.displacement_coeff[:, cols], dtype=float)
-            for r, (_, _, rows_d, corr_d) in reduced.local_responses().items():
+            for r, (_, _, rows_d, own_d) in reduced.local_responses().items():
                 on_rod = np.flatnonzero(rod == r)
                 if len(on_rod):
                     local = np.searchsorted(np.flatnonzero(reduced.point_rod == r), keep[on_rod])
-                    A[:, (3 * on_rod[:, None] + np.arange(3)).ravel()] += O[:, rows_d] @ corr_d[:, (3 * local[:, None] + np.arange(3)).ravel()]
+                    A[:, (3 * on_rod[:, None] + np.arange(3)).ravel()] += O[:, rows_d] @ own_d[:, (3 * local[:, None] + np.arange(3)).ravel()]
             kinematics = rod_kinematics.RodKinematics(sections, A, sections.O @ reduced.displacement_gravity.astype(float), X, rod)
             timings["precompute_rod_kinematics"] = time.perf_counter() - t_k
             timings["precompute"] += timings["precompute_rod_kinematics"]
@@ -574,7 +575,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             for lo, hi in _nonzero_runs(np.any(c != 0, axis=1)):
                 out += c[lo:hi].T @ basis_t[lo:hi]
         # each rod's own tets and vertices: its points' responses to their forces, exact
-        for r, (rows_s, corr_s, rows_d, corr_d) in reduced.local_responses().items():
+        for r, (rows_s, own_s, rows_d, own_d) in reduced.local_responses().items():
             on_rod = np.flatnonzero(rod == r)
             if not len(on_rod):
                 continue
@@ -584,8 +585,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             f_r = np.zeros((len(all_on_rod), 3, U), dtype=np.float32)
             f_r[local] = np.moveaxis(loads[first][:, on_rod], 0, -1)
             f_r = f_r.reshape(-1, U)
-            stress[:, rows_s] += f_r.T @ corr_s.T
-            disp[:, rows_d] += f_r.T @ corr_d.T
+            stress[:, rows_s] += f_r.T @ own_s.T
+            disp[:, rows_d] += f_r.T @ own_d.T
         stress, disp = stress.reshape(U, 6, T), disp.reshape(U, -1, 3)
         total = forces.sum(axis=1)
         reaction = -(total + reduced.weight_n)
