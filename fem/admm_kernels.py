@@ -308,9 +308,14 @@ def rod_block_product(C_flat, H, rod, n_rods, f):
         a, end = rod[start], _rod_end(rod, start)
         lo, hi = 3 * start, 3 * end
         nb = hi - lo
-        out[lo:hi] = C_flat[offset : offset + nb * nb].reshape(nb, nb) @ flat[lo:hi]
+        loaded = False
         for k in range(lo, hi):
             summed[3 * a + k % 3] += flat[k]
+            loaded = loaded or flat[k] != 0.0
+        if loaded:  # (most rods near the path carry no force: the default demo's 9 of 20 never do)
+            out[lo:hi] = C_flat[offset : offset + nb * nb].reshape(nb, nb) @ flat[lo:hi]
+        else:
+            out[lo:hi] = 0.0
         offset += nb * nb
         start = end
     coupled = H @ summed

@@ -65,7 +65,9 @@ __all__ = ["DenseDelassus", "RodBlockDelassus", "rod_resultant_coupling", "rod_b
 RHO_RUNG = 10.0 ** 0.25
 # a rho rung that is not factorised yet is taken only when the residual balancing asks for it twice
 # in a row (a rod-block operator's new rung costs the block solves of its 3 resultant columns and a
-# 3 R x 3 R solve; a dense one's is free, its operator diagonalised once)
+# 3 R x 3 R solve; a dense one's is free, its operator diagonalised once). "Yet" means in this
+# episode (WarmStart.rungs_seen), not in the operator's cache, which outlives episodes: an episode's
+# answer must not depend on what ran before it
 NEW_RUNG_AFTER = 2
 # Anderson acceleration (fem.admm_kernels.run_anderson) of both operators: on the default demo its 5
 # last differences cut the linear tier's iterations from 2447 to 1407 (max per step 351 -> 200), the
@@ -88,7 +90,7 @@ SECOND_ORDER_RTOL = 1e-2
 # 0 after). Default demo (a flat punch on whole tips): 1588 -> 1542 iterations; tiny scene: 486 -> 391
 # iterations, 8.4 -> 9.9 ms (its sub-blocks' diagonalisation costs more than the iterations it saves)
 WHOLE_ROD_FRACTION = 0.5
-SUB_OPERATORS_KEPT = 256  # restricted operators (and their rho ladders) kept per operator
+SUB_OPERATORS_KEPT = 64  # restricted operators (and their rho ladders) kept per operator
 SUB_BLOCKS_KEPT = 1024  # diagonalised sub-blocks kept per operator
 INVERSES_KEPT = 512  # the blocks' explicit inverses, per rho, kept per operator (a tip's: 93^2 doubles)
 
@@ -111,6 +113,7 @@ class _Delassus:
     """G = E + diag(1/k) (x) I_3 on point forces (m, 3): E f the elastic displacement of the points."""
 
     inv_k: np.ndarray  # (m,) m/N
+    key = b""  # a sub-operator's: its points' indices in its root (RodBlockDelassus.restrict_points)
     anderson_memory = 0  # Anderson acceleration of the ADMM map (fem.admm_kernels.run_anderson): 0 = off
 
     def __init__(self):
@@ -245,6 +248,7 @@ class RodBlockDelassus(_Delassus):
             eig.append(lam)
             Qs.append(Q)
         self._set_blocks(eig, Qs)
+        self._root, self.points = None, np.arange(len(self.rod))  # a sub-operator's: its root, and its points there
         self._restricted: dict[bytes, RodBlockDelassus] = {}
         self._sub_blocks: dict[tuple, tuple] = {}  # (rod, its kept points) -> (C, eigenvalues, eigenvectors)
         self._evicted_factorisations = 0
@@ -269,8 +273,16 @@ class RodBlockDelassus(_Delassus):
         sub-operator, exact where the other points carry no force. A rod all of whose points are kept
         shares this operator's diagonalised block; a rod cut to some of its points has its principal
         sub-block diagonalised (kept per set of points, as are the sub-operators and their rho ladders).
-        The coupling H is unchanged: the rods' resultants sum the kept points' forces."""
+        The coupling H is unchanged: the rods' resultants sum the kept points' forces.
+
+        A sub-operator's restrictions are its root's (the operator it was cut from), so they share one
+        set of caches: an operator of the whole sensor kept with the reduced model
+        (:meth:`fem.quasistatic.ReducedModel.contact_operator`) serves every episode, and the rods'
+        diagonalised blocks, their inverses per rho and the sub-operators an episode needs are there
+        for the next episode that needs them."""
         points = np.asarray(points, dtype=np.int64)
+        if self._root is not None:
+            return self._root.restrict_points(self.points[points])
         key = points.tobytes()
         if key not in self._restricted:
             point_rod = self.rod[points]
@@ -304,7 +316,7 @@ class RodBlockDelassus(_Delassus):
             sub._restricted, sub._sub_blocks, sub._factors, sub.factorisations, sub.rho0 = {}, {}, {}, 0, self.rho0
             sub._evicted_factorisations = 0
             sub._block_keys, sub._inverses = keys, self._inverses
-            sub.points = points
+            sub._root, sub.points, sub.key = self, points, key
             _, dropped = _kept(self._restricted, key, lambda: sub, SUB_OPERATORS_KEPT)
             self._evicted_factorisations += sum(d.factorisations for d in dropped)
         return self._restricted[key]
@@ -432,11 +444,13 @@ class AdmmInfo:
 
 
 def admm_contact(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float, f0: np.ndarray | None = None, z0: np.ndarray | None = None,
-                 rung: int = 0, rtol: float = 1e-5, f_scale: float = 0.0, max_iterations: int = 200):
+                 rung: int = 0, rtol: float = 1e-5, f_scale: float = 0.0, max_iterations: int = 200, rungs_seen: set | None = None):
     """Solve the linearised contact problem sigma = G f + b (see the module docstring) by ADMM.
 
     G: the Delassus operator; b (m, 3) m; n (m, 3) unit normals; mu the friction coefficient;
-    f0, z0 (m, 3) warm starts (forces N and the cone multiplier m); ``rung`` the starting rho rung.
+    f0, z0 (m, 3) warm starts (forces N and the cone multiplier m); ``rung`` the starting rho rung;
+    ``rungs_seen`` the (operator key, rung) pairs an episode has used (read and updated; None: the
+    rungs G has factorised).
     Stops when max |x - y| and max |y - y_old| are at most rtol x max(|f|, f_scale) (N).
     Returns (f (m, 3) in the cones, z, rung reached, iterations, residual N, tolerance N).
     """
@@ -455,7 +469,10 @@ def admm_contact(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float, f0: np.n
     pending = 0  # consecutive requests (signed: up > 0) for a rung not factorised yet
     memory = G.anderson_memory
     rejections = np.zeros(1, dtype=np.int64)
+    seen = (lambda r: G.factorised(r)) if rungs_seen is None else (lambda r: (G.key, r) in rungs_seen)
     while True:
+        if rungs_seen is not None:
+            rungs_seen.add((G.key, rung))
         operator = G.kernel_operator(rung)
         common = (*operator, G.rho(rung), b, n, float(mu), y, z, s, it, int(max_iterations), float(rtol), float(f_scale))
         if memory > 0:
@@ -468,7 +485,7 @@ def admm_contact(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float, f0: np.n
         if abs(rung + step) > admm_kernels.MAX_RUNG:
             continue
         # count consecutive requests in one direction (a request the other way starts again)
-        pending = (pending + step if pending * step >= 0 else step) if not G.factorised(rung + step) else step * NEW_RUNG_AFTER
+        pending = (pending + step if pending * step >= 0 else step) if not seen(rung + step) else step * NEW_RUNG_AFTER
         if abs(pending) >= NEW_RUNG_AFTER:
             rung, pending = rung + step, 0
 
@@ -500,6 +517,7 @@ class WarmStart:
     rung: int = 0
     kinematics: object | None = None
     hidden: dict = field(default_factory=dict)
+    rungs_seen: set = field(default_factory=set)  # (operator key, rung) the episode has used (admm_contact)
 
     HIDDEN_KEPT = 64  # states remembered (force control tries a few heights per step, halves nest 8 deep)
 
@@ -549,8 +567,8 @@ def admm_on_touching_rods(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float,
         per_rod = np.bincount(G.rod[wanted], minlength=G.n_rods)
         whole = per_rod >= WHOLE_ROD_FRACTION * sizes
         taken = wanted | ((per_rod > 0) & whole)[G.rod]
-        sub = G.restrict_points(np.flatnonzero(taken))
-        p = sub.points
+        p = np.flatnonzero(taken)
+        sub = G.restrict_points(p)
         f_p, z_p, rung, it, res, tol = admm_contact(sub, b[p], n[p], mu, f[p], None if z is None else z[p], rung,
                                                     max_iterations=max(max_iterations - used, 1), **kw)
         used += it
@@ -629,7 +647,8 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
             z = None
             it, res, tol = 0, 0.0, 0.0
         else:
-            f, z, rung, it, res, tol = admm_on_touching_rods(G, b, n, friction, f, z, rung, rtol=rtol, f_scale=f_floor_n, max_iterations=max_iterations)
+            f, z, rung, it, res, tol = admm_on_touching_rods(G, b, n, friction, f, z, rung, rtol=rtol, f_scale=f_floor_n, max_iterations=max_iterations,
+                                                             rungs_seen=warm.rungs_seen)
         if kin is not None:
             f_lin, f_last = (f_last if f_last is not None else np.zeros_like(f)), f
         info.iterations += it

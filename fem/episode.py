@@ -52,7 +52,7 @@ class SolveSettings:
     small_strain_limit: float = 0.5  # refuse a step where a contact point moves more than this x rod height
     contact_solver: str = "admm"  # "admm" (fem.contact_admm) | "newton" (fem.condensed._newton_points)
     contact_max_iterations: int = 200  # ADMM iterations per linearisation
-    nonlinear_newton: str = "penalty"  # the nonlinear tier's step solver: "penalty" | "condensed" (fem.finite_strain)
+    nonlinear_newton: str = "condensed"  # the nonlinear tier's step solver: "condensed" | "penalty" (fem.finite_strain)
     rod_kinematics: str = "first_order"  # "first_order" | "second_order" (fem.rod_kinematics; admm only)
 
     @classmethod

@@ -12,11 +12,11 @@ configuration. Per step the residual and its consistent tangent are
 
 solved by one of two Newton methods (``fidelity.solve.nonlinear_newton``):
 
-- ``"condensed"``: the condensed Newton of :class:`CondensedBody`: the body linearised once and
+- ``"condensed"`` (default): the condensed Newton of :class:`CondensedBody`: the body linearised once and
   condensed onto the contact points, the frictional contact solved exactly in every iteration by the
   linear tiers' bounded ADMM, the body's nonlinearity by an Anderson-accelerated outer iteration; a
   step it does not converge goes to the penalty Newton below;
-- ``"penalty"`` (default): Newton on R with contact inside the loop, backtracking on |R| (trial states that
+- ``"penalty"``: Newton on R with contact inside the loop, backtracking on |R| (trial states that
   invert an element are refused) and a trust region on the contact points (no point moves more than
   ``max_step`` per iteration).
 

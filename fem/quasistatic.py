@@ -17,7 +17,9 @@ base bottom clamped, optional gravity) and the contact on condensed compliance
   patches' responses everywhere else in low-rank form (a few columns per rod: away from its own rod
   a rod's load acts as its resultant force and moment, :func:`far_field_basis`). A step solves the
   contact on each rod's exact point compliance with the rods coupled through their resultants
-  (:class:`fem.contact_admm.RodBlockDelassus`); the fields superpose, on each loaded rod, its
+  (:class:`fem.contact_admm.RodBlockDelassus`: one operator per sensor, kept with the precompute in
+  memory, and each episode its principal sub-operator on the points near its path, so that the
+  factorisations made for one episode serve the next: :meth:`ReducedModel.contact_operator`); the fields superpose, on each loaded rod, its
   points' responses and, elsewhere, its patches' far field. The approximations, against ``linear``:
   a rod feels another's load as its resultant (through the base, far from the tips), and tets off
   the loaded rod see patch resultants (to 1e-3 of their norm in the low-rank form); on the default
@@ -139,6 +141,8 @@ class ReducedModel:
     local_sizes: np.ndarray  # (R, 3) per rod: rod index, 6 T_a, 3 P_a
     element: str = "P2P1"
     seconds: dict = field(default_factory=dict)
+    # the contact operators of the whole sensor, per penalty (contact_operator), kept in memory only
+    _operators: dict = field(default_factory=dict, repr=False, compare=False)
 
     _ARRAYS = ("X", "area_m2", "rod", "C", "stress_basis", "stress_coeff", "displacement_basis", "displacement_coeff", "stress_gravity", "displacement_gravity",
                "patch_u_gravity", "weight_n", "lam", "mu", "point_X", "point_area_m2", "point_patch", "point_rod", "point_u_gravity",
@@ -160,6 +164,30 @@ class ReducedModel:
             out[int(r)] = self.point_compliance_blocks[offset : offset + n * n].reshape(n, n)
             offset += n * n
         return out
+
+    def __getstate__(self) -> dict:
+        # a worker that receives the model makes its own contact operators (they are caches, up to ~100 MB)
+        return {**self.__dict__, "_operators": {}}
+
+    def rod_order(self) -> np.ndarray:
+        """(m,) the contact points rod by rod (a stable sort: ascending index within each rod)."""
+        return np.argsort(self.point_rod, kind="stable")
+
+    def contact_operator(self, k_n: np.ndarray) -> contact_admm.RodBlockDelassus:
+        """The ADMM contact solver's Delassus operator on every contact point of the sensor, in
+        :meth:`rod_order`, for penalties ``k_n`` (m,) N/m in that order; an episode takes its
+        principal sub-operator on the points near its path (``restrict_points``). Kept per penalty,
+        so the rods' diagonalised blocks, their inverses per rho and the sub-operators that the
+        contact steps use are made once per sensor, not once per episode (a dataset's episodes share
+        them). Its coupling H is the rods' mean mutual compliance from the patch compliance
+        (:func:`fem.contact_admm.rod_resultant_coupling`)."""
+        key = np.asarray(k_n, dtype=float).tobytes()
+        if key not in self._operators:
+            order = self.rod_order()
+            blocks, H = _rod_operator(self, order)
+            self._operators.clear()  # one penalty per scene: a new one replaces the last
+            self._operators[key] = contact_admm.RodBlockDelassus(blocks, H, self.point_rod[order], k_n)
+        return self._operators[key]
 
     def local_responses(self) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
         """Per rod: (stress rows, its points' stress response there (6 T_a, 3 m_a), displacement rows,
@@ -328,6 +356,13 @@ def _rod_operator(reduced: ReducedModel, keep: np.ndarray) -> tuple[list, np.nda
     return blocks, H_all[np.ix_(sel, sel)]
 
 
+def _all_factorisations(delassus) -> int:
+    """The rho rungs factorised so far by a contact operator and its restrictions (a sub-operator of the
+    sensor's: by the sensor's)."""
+    root = getattr(delassus, "_root", None) or delassus
+    return getattr(root, "all_factorisations", root.factorisations)
+
+
 def build_reduced(scene, mesh, body: LinearBody | None = None, settings: SolveSettings | None = None, progress=None) -> ReducedModel:
     """The ``reduced`` tier's precompute for a scene's sensor (independent of its load): contact
     points of the tips and side bands, grouped into patches, and their responses."""
@@ -382,11 +417,15 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         # contact at every point near the path, rod by rod: each rod's points with their own compliance,
         # the rods coupled through their resultants (fem.contact_admm.RodBlockDelassus)
         keep = path_points(reduced.point_X, shape, load, grid, tip_z, settings.path_margin_m)
-        keep = keep[np.argsort(reduced.point_rod[keep], kind="stable")]
+        # rod by rod, ascending within a rod: the points' order in the sensor's contact operator
+        order = reduced.rod_order()
+        position = np.empty(len(order), dtype=np.int64)
+        position[order] = np.arange(len(order))
+        keep_at = np.sort(position[keep])
+        keep = order[keep_at]
         X, area, rod = reduced.point_X[keep], reduced.point_area_m2[keep], reduced.point_rod[keep]
         u0 = reduced.point_u_gravity[keep]
-        blocks, H = _rod_operator(reduced, keep)
-        C = None  # the ADMM solver takes the blocks; the Newton solver their dense form (below)
+        C = None  # the ADMM solver takes the sensor's operator (below); the Newton solver the dense form
         timings.update({f"precompute_{k}": v for k, v in reduced.seconds.items()})
         timings["precompute"] = sum(reduced.seconds.values())
         if second_order:
@@ -424,10 +463,15 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     k_n, k_t = setup.penalties(area)
     contact_kw = {"max_iterations": CONTACT_MAX_ITERATIONS}
     if settings.tier == "reduced" and settings.contact_solver != "admm":
-        C = contact_admm.rod_block_compliance(blocks, H, rod)
+        C = contact_admm.rod_block_compliance(*_rod_operator(reduced, keep), rod)
     if settings.contact_solver == "admm":
         t_d = time.perf_counter()
-        delassus = contact_admm.DenseDelassus(C, k_n) if settings.tier == "linear" else contact_admm.RodBlockDelassus(blocks, H, rod, k_n)
+        if settings.tier == "linear":
+            delassus = contact_admm.DenseDelassus(C, k_n)
+        else:
+            sensor = reduced.contact_operator(setup.penalties(reduced.point_area_m2[order])[0])
+            delassus = sensor.restrict_points(keep_at)
+        factorisations_before = _all_factorisations(delassus)
         delassus.solve(np.zeros((len(X), 3)), 0)  # the first factorisation belongs to the precompute
         timings["precompute_delassus"] = time.perf_counter() - t_d
         timings["precompute"] += timings["precompute_delassus"]
@@ -542,7 +586,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     timings["contact_step_ms"] = step_ms.tolist()  # each step's contact solve (benchmarks take medians by kind of frame)
     if settings.contact_solver == "admm":
         timings["contact_worst_residual_n"] = worst["residual_n"]
-        timings["contact_factorisations"] = getattr(contact_kw["delassus"], "all_factorisations", contact_kw["delassus"].factorisations)
+        timings["contact_factorisations"] = _all_factorisations(contact_kw["delassus"]) - factorisations_before
         timings["contact_unlinearised_steps"] = len(worst["unlinearised"])
         if worst["ratio"] > 1.0 and log is not None:
             log(f"warning: the contact solve of step {worst['step']} stopped at its bound of {settings.contact_max_iterations} ADMM "
@@ -566,27 +610,29 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         patch_cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
         to_patches = sp.csr_matrix((np.ones(3 * m), (patch_cols, np.arange(3 * m))), shape=(reduced.stress_coeff.shape[1], 3 * m))
         Fp = to_patches @ loads[first].reshape(U, 3 * m).T
-        # float32 sums (the fields are stored as float32; the responses are float32)
-        stress = np.broadcast_to(reduced.stress_gravity.astype(np.float32), (U, len(reduced.stress_gravity))).copy()
-        disp = np.broadcast_to(reduced.displacement_gravity.astype(np.float32), (U, len(reduced.displacement_gravity))).copy()
+        # float32 sums (the fields are stored as float32; the responses are float32), one row per
+        # stress or displacement component (6 T, U): a rod's own rows are then gathered as contiguous rows
+        stress = np.repeat(reduced.stress_gravity.astype(np.float32)[:, None], U, axis=1)
+        disp = np.repeat(reduced.displacement_gravity.astype(np.float32)[:, None], U, axis=1)
         for basis_t, coeff, out in ((reduced.stress_basis, reduced.stress_coeff, stress), (reduced.displacement_basis, reduced.displacement_coeff, disp)):
             c = (coeff @ Fp).astype(np.float32)  # (K, U), zero on the unloaded rods' columns
             # the loaded rods' basis rows: a run of loaded rods is one contiguous block of the (K, n) basis
             for lo, hi in _nonzero_runs(np.any(c != 0, axis=1)):
-                out += c[lo:hi].T @ basis_t[lo:hi]
+                out += basis_t[lo:hi].T @ c[lo:hi]
         # each rod's own tets and vertices: its points' responses to their forces, exact
         for r, (rows_s, own_s, rows_d, own_d) in reduced.local_responses().items():
             on_rod = np.flatnonzero(rod == r)
-            if not len(on_rod):
-                continue
+            if not len(on_rod) or not np.any(loads[first][:, on_rod]):
+                continue  # (a rod near the path that the indenter never loads: the demo's 9 of 20)
             all_on_rod = np.flatnonzero(reduced.point_rod == r)
             local = np.searchsorted(all_on_rod, keep[on_rod])
             # the rod's loads on all its points, zero off the path (no copy of the corrections' columns)
             f_r = np.zeros((len(all_on_rod), 3, U), dtype=np.float32)
             f_r[local] = np.moveaxis(loads[first][:, on_rod], 0, -1)
             f_r = f_r.reshape(-1, U)
-            stress[:, rows_s] += f_r.T @ own_s.T
-            disp[:, rows_d] += f_r.T @ own_d.T
+            stress[rows_s] += own_s @ f_r
+            disp[rows_d] += own_d @ f_r
+        stress, disp = stress.T, disp.T
         stress, disp = stress.reshape(U, 6, T), disp.reshape(U, -1, 3)
         total = forces.sum(axis=1)
         reaction = -(total + reduced.weight_n)

@@ -357,3 +357,20 @@ def test_a_bending_load_warns_with_its_estimated_error(tiny_mesh, body):
     said.clear()
     small = qs.run_episode(_scene(scene0, PRESS_HOLD, 0.5), mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False), log=said.append)
     assert small.seconds["geometric_error_estimate"] < 0.02 and not any("kinematics" in m for m in said)
+
+
+def test_a_sub_operators_restrictions_are_its_roots():
+    """Restricting a sub-operator restricts the operator it was cut from (one set of caches for all):
+    the same object, and still the dense principal sub-block of the whole."""
+    rods, dense, _, rod, rng = _rod_block_problem(6, sizes=(6, 5, 7, 4))
+    path = np.flatnonzero(rod != 3)  # an episode's points
+    sub = rods.restrict_points(path)
+    touching = np.array([0, 1, 2, 7, 8, 12, 13])  # indices into the sub-operator's points
+    inner = sub.restrict_points(touching)
+    assert inner is rods.restrict_points(path[touching])
+    sel = (3 * path[touching][:, None] + np.arange(3)).ravel()
+    G = dense.C[np.ix_(sel, sel)] + np.diag(np.repeat(dense.inv_k[path[touching]], 3))
+    r = rng.standard_normal((len(touching), 3))
+    np.testing.assert_allclose(inner.apply(r).ravel(), G @ r.ravel(), rtol=1e-12)
+    rho = inner.rho(2)
+    np.testing.assert_allclose(inner.solve(r, 2).ravel(), np.linalg.solve(G + rho * np.eye(len(G)), r.ravel()), rtol=1e-9)

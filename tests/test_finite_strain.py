@@ -108,17 +108,17 @@ def test_contact_woodbury_directions_solve_the_frictional_tangent():
 
 
 def test_condensed_newton_gives_the_penalty_newtons_answer_on_a_press(tiny_mesh):
-    """The nonlinear tier's two step solvers solve the same equations: the condensed Newton (opt-in:
-    ADMM on the body linearised once and condensed onto the contact points) and the default penalty
+    """The nonlinear tier's two step solvers solve the same equations: the condensed Newton (the
+    default: ADMM on the body linearised once and condensed onto the contact points) and the penalty
     Newton with contact inside its loop. A flat probe pressed 0.4 mm into the tips with mu = 0.8:
     per-rod contact forces within 1 % of the peak at every step (the penalty Newton rounds the return
     map's corner: fem.condensed._contact_law)."""
     scene0, _, mesh, _ = tiny_mesh
     scene = _scene(scene0, [{"kind": "press", "depth_mm": 0.9, "speed_mm_s": 9.0}], friction=0.8)
-    penalty = run_nonlinear_episode(scene, mesh)
+    condensed_ep = run_nonlinear_episode(scene, mesh)
     data = scene.model_dump(mode="json", exclude_none=True)
-    data["fidelity"]["solve"]["nonlinear_newton"] = "condensed"
-    condensed_ep = run_nonlinear_episode(scene_from_dict(data), mesh)
+    data["fidelity"]["solve"]["nonlinear_newton"] = "penalty"
+    penalty = run_nonlinear_episode(scene_from_dict(data), mesh)
     peak = np.abs(penalty.rod_force_n).max()
     assert peak > 0.5
     np.testing.assert_allclose(condensed_ep.rod_force_n, penalty.rod_force_n, rtol=0, atol=0.01 * peak)

@@ -231,3 +231,26 @@ def test_a_rods_load_reaches_the_rest_of_the_sensor_as_its_resultant(tiny_mesh, 
                         for r in np.unique(red.rod)])
     assert per_rod.sum() == len(red.stress_coeff)  # each basis vector belongs to one rod
     assert np.all((per_rod >= 5) & (per_rod <= 7)), per_rod
+
+
+def test_episodes_sharing_the_sensors_contact_operator_repeat_a_cold_episode_exactly(tiny_mesh, body):
+    """The reduced tier's contact operator is the sensor's, kept with the reduced model and shared by
+    its episodes (ReducedModel.contact_operator): an episode that finds its blocks, inverses and
+    sub-operators made by an earlier one gives the answer of one that makes them (same scene, same
+    output), and another load in between changes nothing."""
+    scene0, _, mesh, _ = tiny_mesh
+    press_slide = _scene(scene0, [{"kind": "press", "depth_mm": 0.8, "speed_mm_s": 8.0},
+                                  {"kind": "slide", "distance_mm": 0.6, "speed_mm_s": 6.0, "direction_deg": 30.0}], friction=0.5)
+    other = _scene(scene0, [{"kind": "press", "depth_mm": 0.5, "speed_mm_s": 5.0}], friction=0.3)
+    settings = qs.SolveSettings(tier="reduced", gravity=False)
+    reduced = qs.build_reduced(press_slide, mesh, body, settings)
+    cold = qs.run_episode(press_slide, mesh, body=body, settings=settings, reduced=reduced)
+    assert cold.seconds["contact_factorisations"] > 0
+    qs.run_episode(other, mesh, body=body, settings=settings, reduced=reduced)
+    warm = qs.run_episode(press_slide, mesh, body=body, settings=settings, reduced=reduced)
+    assert len(reduced._operators) == 1  # one operator for the sensor, not one per episode
+    assert warm.seconds["contact_factorisations"] == 0  # every rung it needs was made by the first
+    np.testing.assert_array_equal(warm.rod_force_n, cold.rod_force_n)
+    np.testing.assert_array_equal(warm.von_mises, cold.von_mises)
+    fresh = qs.run_episode(press_slide, mesh, body=body, settings=settings, reduced=qs.build_reduced(press_slide, mesh, body, settings))
+    np.testing.assert_array_equal(fresh.rod_force_n, cold.rod_force_n)
