@@ -156,6 +156,11 @@ class _Delassus:
         """(G + rho I)^-1 r for rho = :meth:`rho` (rung); r (m, 3)."""
         return self._solve(self._factor(rung), r, self.rho(rung))
 
+    @property
+    def all_factorisations(self) -> int:
+        """The rho rungs factorised so far (with a rod-block operator's restrictions)."""
+        return self.factorisations
+
     def factorised(self, rung: int) -> bool:
         return rung in self._factors
 
@@ -333,7 +338,10 @@ class RodBlockDelassus(_Delassus):
 
     @property
     def all_factorisations(self) -> int:
-        """Factorisations of this operator and of its restrictions."""
+        """Factorisations of this operator and of its restrictions (a sub-operator's: its root's, whose
+        restrictions its own are)."""
+        if self._root is not None:
+            return self._root.all_factorisations
         return self.factorisations + self._evicted_factorisations + sum(sub.factorisations for sub in self._restricted.values())
 
     def rod_sum(self, f: np.ndarray) -> np.ndarray:

@@ -356,13 +356,6 @@ def _rod_operator(reduced: ReducedModel, keep: np.ndarray) -> tuple[list, np.nda
     return blocks, H_all[np.ix_(sel, sel)]
 
 
-def _all_factorisations(delassus) -> int:
-    """The rho rungs factorised so far by a contact operator and its restrictions (a sub-operator of the
-    sensor's: by the sensor's)."""
-    root = getattr(delassus, "_root", None) or delassus
-    return getattr(root, "all_factorisations", root.factorisations)
-
-
 def build_reduced(scene, mesh, body: LinearBody | None = None, settings: SolveSettings | None = None, progress=None) -> ReducedModel:
     """The ``reduced`` tier's precompute for a scene's sensor (independent of its load): contact
     points of the tips and side bands, grouped into patches, and their responses."""
@@ -471,7 +464,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         else:
             sensor = reduced.contact_operator(setup.penalties(reduced.point_area_m2[order])[0])
             delassus = sensor.restrict_points(keep_at)
-        factorisations_before = _all_factorisations(delassus)
+        factorisations_before = delassus.all_factorisations
         delassus.solve(np.zeros((len(X), 3)), 0)  # the first factorisation belongs to the precompute
         timings["precompute_delassus"] = time.perf_counter() - t_d
         timings["precompute"] += timings["precompute_delassus"]
@@ -586,7 +579,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     timings["contact_step_ms"] = step_ms.tolist()  # each step's contact solve (benchmarks take medians by kind of frame)
     if settings.contact_solver == "admm":
         timings["contact_worst_residual_n"] = worst["residual_n"]
-        timings["contact_factorisations"] = _all_factorisations(contact_kw["delassus"]) - factorisations_before
+        timings["contact_factorisations"] = contact_kw["delassus"].all_factorisations - factorisations_before
         timings["contact_unlinearised_steps"] = len(worst["unlinearised"])
         if worst["ratio"] > 1.0 and log is not None:
             log(f"warning: the contact solve of step {worst['step']} stopped at its bound of {settings.contact_max_iterations} ADMM "
