@@ -539,6 +539,10 @@ class RenderFidelity(_Model):
     entries below ``transport_drop`` times the largest are dropped (the dropped share is reported)."""
 
     tier: Literal["transport", "path"] = "transport"
+    # Where Mitsuba traces (path frames, the transport matrix): "auto" takes an NVIDIA GPU where
+    # Mitsuba's cuda_ad_mono starts (about 50x the 2-core CPU on a path-traced frame), else the CPU;
+    # the run log says which. "cuda" fails with the reason where there is no GPU.
+    device: Literal["auto", "cpu", "cuda"] = "auto"
     spp: Annotated[int, Strict(), Field(ge=1, le=65536)] = 16
     # The emitting sheet's edges are split down to this length: emission is linear over each face
     # and one value per vertex (mlsim.emission.patches); 1 mm is half the default tet edge.

@@ -3,7 +3,9 @@
 Two tiers behind one function (:func:`render_frames`), selected by ``fidelity.render.tier``:
 
 - ``path`` (:meth:`mlsim.render.sensor_scene.SensorScene.render`): Mitsuba path-traces every frame
-  on the deformed sheet, ``fidelity.render.spp`` samples per pixel;
+  on the deformed sheet, ``fidelity.render.spp`` samples per pixel, on the CPU or, where there is
+  one, an NVIDIA GPU (``fidelity.render.device``; the same scene in ``cuda_ad_mono``: on an H100,
+  see ``benchmarks/bench_render_device.py``);
 - ``transport`` (:mod:`mlsim.render.transport`): one sparse pixels x vertices matrix traced once per
   geometry (cached by the pipeline), then every frame is a sparse product. The matrix is of the rest
   shape, and the rods' deformation changes what reaches the camera (on the default demo's slide,
@@ -72,17 +74,20 @@ class RenderResult:
                    z["ambient"] if "ambient" in z.files else None)
 
 
-def sensor_scene_for(scene, patches) -> SensorScene:
+def sensor_scene_for(scene, patches, device: str | None = None) -> SensorScene:
     """The :class:`SensorScene` of a scene whose emitting sheet is ``patches``
-    (:class:`mlsim.emission.MLPatches`)."""
+    (:class:`mlsim.emission.MLPatches`), on ``device`` ("cpu" or "cuda"; None: the scene's
+    ``fidelity.render.device`` resolved by :func:`mlsim.render.sensor_scene.resolve_device`)."""
     from fem.geometry import RodArray
+    from mlsim.render.sensor_scene import resolve_device
 
     g = RodArray.from_sensor(scene.sensor)
     o, r = scene.optics, scene.fidelity.render
+    device = device if device is not None else resolve_device(r.device)[0]
     return SensorScene(patches.vertices_m, patches.faces, view_of(scene), core_ior=o.elastomer_refractive_index,
                        acrylic_ior=o.acrylic_refractive_index, acrylic_thickness_m=o.acrylic_thickness_mm * 1e-3,
                        base_half_size_m=max(g.size_x_m, g.size_y_m) / 2, reflectance=o.ml_layer_reflectance,
-                       max_depth=r.max_depth, rr_depth=r.rr_depth)
+                       max_depth=r.max_depth, rr_depth=r.rr_depth, device=device)
 
 
 def deformed_vertices(episode, vertices_m, located: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:

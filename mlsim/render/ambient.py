@@ -114,7 +114,7 @@ def lamp_visibility(sensor_scene, points_m, normals, lamp_m, offset_m: float = 1
     meets nothing in the sensor scene, else 0.0 (Mitsuba's ``ray_test`` on its BVH)."""
     from mlsim.render.sensor_scene import use_variant
 
-    mi = use_variant()  # the sheet scenes that trace the leak are mono
+    mi = use_variant(sensor_scene.variant)  # the sheet scene's own (mono, on its device)
     o = (np.asarray(points_m, dtype=float) + offset_m * np.asarray(normals, dtype=float)) * 1e3  # Mitsuba works in mm
     d = np.asarray(lamp_m, dtype=float)[None] * 1e3 - o
     dist = np.linalg.norm(d, axis=1)

@@ -22,11 +22,13 @@ outside the ML layer (no light reaches the core from there except ambient leakag
 :mod:`mlsim.render.ambient` adds as its own emission component); dispersion (one index per
 material, see the spectral shortcut in :mod:`mlsim.render.optics`).
 
-Variant: ``llvm_ad_mono`` (the CPU JIT variants need libLLVM 17+, the scalar variants crash with
-a ``mesh_attribute`` emitter). The renders are mono: the spectrum is applied afterwards.
+Variant: ``llvm_ad_mono`` on the CPU (the CPU JIT variants need libLLVM 17+, the scalar variants
+crash with a ``mesh_attribute`` emitter), ``cuda_ad_mono`` on an NVIDIA GPU (``device="cuda"``: the
+same scene, traced by OptiX; :func:`resolve_device` picks CUDA where it starts). The renders are
+mono: the spectrum is applied afterwards.
 
 Spectral reference (``spectra=``, a :class:`mlsim.render.spectral.RenderSpectra`): the same scene in
-``llvm_ad_spectral``, the sheet's radiance the emission spectrum times the per-vertex value and the
+``llvm_ad_spectral`` (``cuda_ad_spectral`` on the GPU), the sheet's radiance the emission spectrum times the per-vertex value and the
 film a ``specfilm`` whose channels are the path's sensitivities, so that :meth:`SensorScene.render`
 gives per-channel images directly (see :mod:`mlsim.render.spectral`). Mitsuba's variant is global
 and its objects belong to the variant they were built in: every method sets its scene's variant
@@ -37,17 +39,28 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["VARIANT", "SPECTRAL_VARIANT", "use_variant", "SensorScene", "radiance_of"]
+__all__ = ["VARIANT", "SPECTRAL_VARIANT", "DEVICES", "variant_for", "use_variant", "cuda_status", "resolve_device", "SensorScene",
+           "radiance_of"]
 
 VARIANT = "llvm_ad_mono"
 SPECTRAL_VARIANT = "llvm_ad_spectral"  # the spectral reference (mlsim.render.spectral)
+#: where Mitsuba traces: the CPU (Dr.Jit's LLVM back-end) or an NVIDIA GPU (its CUDA back-end, OptiX)
+DEVICES = ("cpu", "cuda")
+_VARIANTS = {("cpu", False): VARIANT, ("cpu", True): SPECTRAL_VARIANT, ("cuda", False): "cuda_ad_mono", ("cuda", True): "cuda_ad_spectral"}
+
+
+def variant_for(device: str = "cpu", spectral: bool = False) -> str:
+    """The Mitsuba variant of the sensor scene on ``device`` ("cpu" or "cuda"), mono or spectral."""
+    if device not in DEVICES:
+        raise ValueError(f'render device "{device}": choose one of {", ".join(DEVICES)} (or "auto" in fidelity.render.device)')
+    return _VARIANTS[(device, bool(spectral))]
 
 
 def use_variant(variant: str = VARIANT):
-    """Import Mitsuba in ``variant`` (default the renderer's, mono); a clear error when the JIT
+    """Import Mitsuba in ``variant`` (default the renderer's CPU mono); a clear error when the JIT
     back-end is missing."""
-    if variant not in (VARIANT, SPECTRAL_VARIANT):
-        raise ValueError(f'Mitsuba variant "{variant}": choose one of {VARIANT}, {SPECTRAL_VARIANT}')
+    if variant not in _VARIANTS.values():
+        raise ValueError(f'Mitsuba variant "{variant}": choose one of {", ".join(_VARIANTS.values())}')
     try:
         import mitsuba as mi
     except ImportError as exc:  # pragma: no cover - an install problem
@@ -56,11 +69,64 @@ def use_variant(variant: str = VARIANT):
         try:
             mi.set_variant(variant)
         except Exception as exc:  # pragma: no cover - a machine problem
-            raise RuntimeError(
-                f"Mitsuba variant {variant} failed to start ({exc}). It needs libLLVM 17 or newer: "
-                "`apt-get install -y libllvm19`, or set DRJIT_LIBLLVM_PATH to a libLLVM.so (17+)"
-            ) from None
+            fix = ("It needs an NVIDIA GPU and driver (nvidia-smi), and Mitsuba's CUDA variants; set fidelity.render.device = "
+                   '"cpu" or "auto" to render on the CPU' if variant.startswith("cuda") else
+                   "It needs libLLVM 17 or newer: `apt-get install -y libllvm19`, or set DRJIT_LIBLLVM_PATH to a libLLVM.so (17+)")
+            raise RuntimeError(f"Mitsuba variant {variant} failed to start ({exc}). {fix}") from None
     return mi
+
+
+_CUDA_STATUS: tuple[bool, str] | None = None
+
+
+def cuda_status() -> tuple[bool, str]:
+    """(True, the GPU's description) when Mitsuba's ``cuda_ad_mono`` starts here, else (False, why
+    not). Probed once per process (it costs a CUDA context, about a second); Mitsuba's current
+    variant is left as it was."""
+    global _CUDA_STATUS
+    if _CUDA_STATUS is None:
+        _CUDA_STATUS = _probe_cuda()
+    return _CUDA_STATUS
+
+
+def _probe_cuda() -> tuple[bool, str]:
+    try:
+        import drjit as dr
+        import mitsuba as mi
+    except ImportError as exc:  # pragma: no cover - an install problem
+        return False, f"mitsuba is not installed ({exc})"
+    if "cuda_ad_mono" not in mi.variants():
+        return False, "this Mitsuba build has no cuda_ad_mono variant"
+    if not dr.has_backend(dr.JitBackend.CUDA):
+        return False, "Dr.Jit found no CUDA driver or GPU (libcuda.so)"
+    before = mi.variant()
+    try:
+        mi.set_variant("cuda_ad_mono")
+        total = float(np.array(dr.sum(mi.Float([1.0, 2.0]))).ravel()[0])  # one kernel through the driver
+        if total != 3.0:  # pragma: no cover - a broken driver
+            return False, f"a test sum on the GPU gave {total}, not 3"
+        return True, "Mitsuba cuda_ad_mono started"
+    except Exception as exc:
+        return False, f"Mitsuba's cuda_ad_mono failed to start ({type(exc).__name__}: {exc})"
+    finally:
+        if before and before != mi.variant():
+            mi.set_variant(before)
+
+
+def resolve_device(requested: str = "auto") -> tuple[str, str]:
+    """The device a render runs on, and why: ``"auto"`` takes CUDA where :func:`cuda_status` says it
+    starts, else the CPU; ``"cuda"`` raises (with the reason and the fix) where it does not."""
+    if requested not in ("auto",) + DEVICES:
+        raise ValueError(f'fidelity.render.device = "{requested}": choose "auto", "cpu" or "cuda"')
+    if requested == "cpu":
+        return "cpu", "fidelity.render.device = cpu"
+    ok, why = cuda_status()
+    if ok:
+        return "cuda", f"fidelity.render.device = {requested}: {why}"
+    if requested == "cuda":
+        raise RuntimeError(f'fidelity.render.device = "cuda", but CUDA is not available here: {why}. '
+                           'Set fidelity.render.device = "auto" (CUDA where it starts, else the CPU) or "cpu"')
+    return "cpu", f"fidelity.render.device = auto: no GPU ({why})"
 
 
 def radiance_of(photons_per_s, area_m2) -> np.ndarray:
@@ -81,18 +147,23 @@ class SensorScene:
     ``llvm_ad_spectral`` with the emitter radiance spectrum(lambda) x per-vertex value and a film of
     one channel per sensitivity curve; :meth:`render` then returns (H, W, C). ``options`` holds the
     keyword settings the scene was built with (:func:`mlsim.render.spectral.spectral_twin` reuses them).
+
+    ``device``: ``"cpu"`` (``llvm_ad_*``) or ``"cuda"`` (``cuda_ad_*``, an NVIDIA GPU; see
+    :func:`resolve_device` for ``"auto"``). The scene, the seeds and the samples are the same; the
+    images agree within Monte Carlo error (``tests/test_render_cuda.py``), not bit for bit.
     """
 
     def __init__(self, sheet_vertices_m, sheet_faces, view, *, core_ior: float = 1.41, acrylic_ior: float = 1.49,
                  acrylic_thickness_m: float = 3e-3, base_half_size_m: float | None = None, reflectance: float = 0.5,
-                 max_depth: int = 12, rr_depth: int = 5, spectra=None):
+                 max_depth: int = 12, rr_depth: int = 5, spectra=None, device: str = "cpu"):
         if spectra is not None:
             from mlsim.render.spectral import RenderSpectra
 
             if not isinstance(spectra, RenderSpectra):
                 raise TypeError(f"spectra is a {type(spectra).__name__}: must be a mlsim.render.spectral.RenderSpectra "
                                 "(see mlsim.render.spectral.ml_render_spectra)")
-        self.variant = VARIANT if spectra is None else SPECTRAL_VARIANT
+        self.variant = variant_for(device, spectra is not None)
+        self.device = device
         self.spectra = spectra
         mi = use_variant(self.variant)
         V = np.asarray(sheet_vertices_m, dtype=float)
@@ -110,7 +181,7 @@ class SensorScene:
         half_mm = 1e3 * half_m
         self.options = {"core_ior": float(core_ior), "acrylic_ior": float(acrylic_ior), "acrylic_thickness_m": float(acrylic_thickness_m),
                         "base_half_size_m": float(half_m), "reflectance": float(reflectance), "max_depth": int(max_depth),
-                        "rr_depth": int(rr_depth)}
+                        "rr_depth": int(rr_depth), "device": device}
         props = mi.Properties()
         props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "spectrum", "value": float(reflectance)}})
         if spectra is None:

@@ -19,11 +19,17 @@ _camera_save, _camera_load = npz_io("camera.npz", "mlsim.render.output:CameraFra
 _calibration_save, _calibration_load = npz_io("calibration.npz", "mlsim.render.calibration_frame:CalibrationFrame")
 
 
-def _sheet(scene: Scene, patches):
-    """The Mitsuba scene of the sheet (shared in-process; render_frames returns it to its rest shape)."""
+def _sheet(scene: Scene, patches, ctx: "RunContext | None" = None):
+    """The Mitsuba scene of the sheet on the scene's render device (shared in-process; render_frames
+    returns it to its rest shape). The run log says which device and why."""
     from mlsim import render
+    from mlsim.render.sensor_scene import resolve_device, variant_for
 
-    return memo(("sheet", stage_key(scene, "mesh"), scene.content_hash(VIEW_FIELDS)), lambda: render.sensor_scene_for(scene, patches))
+    device, why = resolve_device(scene.fidelity.render.device)
+    if ctx is not None:
+        ctx.log(f"[render] device: {device} (Mitsuba {variant_for(device)}; {why})")
+    return memo(("sheet", stage_key(scene, "mesh"), scene.content_hash(VIEW_FIELDS), device),
+                lambda: render.sensor_scene_for(scene, patches, device))
 
 
 # Scene fields that shape the renderer's view of the sheet (not the emission): the transport matrix
@@ -61,7 +67,7 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from mlsim import render
 
     em, episode = inputs["emission"], inputs["solve"]
-    sheet = _sheet(scene, em.patches)
+    sheet = _sheet(scene, em.patches, ctx)
     radiance = render.radiance_of(em.photons_per_s, em.patches.area_m2)
     spec = scene.fidelity.render
     transport = None
@@ -86,6 +92,7 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
                     "which changes rods' intensities by up to tens of % (mlsim accuracy SCENE --stage render)")
     else:
         result = render.render_frames(sheet, radiance, "path", spp=spec.spp, seed=scene.seed, vertices_m=vertices, progress=ctx.progress)
+    result.info["device"] = sheet.device
     if scene.ambient.lamp != "none":
         result.ambient, result.info["ambient"] = _ambient_image(scene, em.patches, sheet, transport)
     return result

@@ -93,7 +93,7 @@ def trace_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e
     if getattr(sensor_scene, "spectra", None) is not None:
         raise ValueError("trace_transport needs a mono SensorScene (the spectral shortcut applies the spectra afterwards); "
                          "build the scene without spectra=")
-    mi = use_variant()
+    mi = use_variant(sensor_scene.variant)  # the scene's device: the CPU, or the GPU where it was built there
     import drjit as dr
 
     if spp < 1 or pass_spp < 1:
