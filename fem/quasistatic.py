@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import json
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -323,6 +324,44 @@ def far_field_basis(response: np.ndarray, patch_rod: np.ndarray, own_rows: dict,
             np.concatenate(coeffs, axis=0) if coeffs else np.zeros((0, n_cols)))
 
 
+def reduced_fields_of(reduced: "ReducedModel", keep: np.ndarray, rod: np.ndarray, loads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The reduced tier's fields of the loads (U, m, 3) N on the path's points ``keep`` (of rods
+    ``rod`` (m,)): stress (6 T, U) and displacement (3 P, U) rows, float32, gravity included.
+
+    By superposition of the sensor's unit responses: away from each loaded rod's own tets and
+    vertices its points' loads, summed per patch, act through its few far-field columns
+    (``stress_basis``, ``stress_coeff``); on its own tets and vertices through its points' exact
+    responses (:meth:`ReducedModel.local_responses`). Rods the loads never touch cost nothing."""
+    U, m = loads.shape[0], loads.shape[1]
+    # (3 M, U) the points' loads summed per patch, zero away from the loaded rods
+    patch_cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
+    to_patches = sp.csr_matrix((np.ones(3 * m), (patch_cols, np.arange(3 * m))), shape=(reduced.stress_coeff.shape[1], 3 * m))
+    Fp = to_patches @ loads.reshape(U, 3 * m).T
+    # float32 sums (the fields are stored as float32; the responses are float32), one row per
+    # stress or displacement component (6 T, U): a rod's own rows are then gathered as contiguous rows
+    stress = np.repeat(reduced.stress_gravity.astype(np.float32)[:, None], U, axis=1)
+    disp = np.repeat(reduced.displacement_gravity.astype(np.float32)[:, None], U, axis=1)
+    for basis_t, coeff, out in ((reduced.stress_basis, reduced.stress_coeff, stress), (reduced.displacement_basis, reduced.displacement_coeff, disp)):
+        c = (coeff @ Fp).astype(np.float32)  # (K, U), zero on the unloaded rods' columns
+        # the loaded rods' basis rows: a run of loaded rods is one contiguous block of the (K, n) basis
+        for lo, hi in _nonzero_runs(np.any(c != 0, axis=1)):
+            out += basis_t[lo:hi].T @ c[lo:hi]
+    # each rod's own tets and vertices: its points' responses to their forces, exact
+    for r, (rows_s, own_s, rows_d, own_d) in reduced.local_responses().items():
+        on_rod = np.flatnonzero(rod == r)
+        if not len(on_rod) or not np.any(loads[:, on_rod]):
+            continue  # (a rod near the path that the indenter never loads: the demo's 9 of 20)
+        all_on_rod = np.flatnonzero(reduced.point_rod == r)
+        local = np.searchsorted(all_on_rod, keep[on_rod])
+        # the rod's loads on all its points, zero off the path (no copy of the corrections' columns)
+        f_r = np.zeros((len(all_on_rod), 3, U), dtype=np.float32)
+        f_r[local] = np.moveaxis(loads[:, on_rod], 0, -1)
+        f_r = f_r.reshape(-1, U)
+        stress[rows_s] += own_s @ f_r
+        disp[rows_d] += own_d @ f_r
+    return stress, disp
+
+
 def _nonzero_runs(nonzero: np.ndarray) -> list[tuple[int, int]]:
     """Index ranges [lo, hi) of the runs of True in ``nonzero``."""
     edges = np.flatnonzero(np.diff(np.r_[0, nonzero.astype(np.int8), 0]))
@@ -565,17 +604,6 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             bar(s + 1)
     timings["contact_steps"] = time.perf_counter() - t_loop
     timings["rod_bending_ratio"] = worst_bend[0]
-    timings["geometric_error_estimate"] = geometric_error_estimate(worst_bend[0])
-    if second_order:
-        # the estimate is of first-order kinematics; second order measured 7-11 % on the tiny slide (fem.rod_kinematics)
-        timings["geometric_error_estimate"] = float("nan")
-    elif timings["geometric_error_estimate"] > GEOMETRIC_WARNING and log is not None:
-        log(f"warning: a rod's contact points move sideways {worst_bend[0]:.1%} of the rod height (step {worst_bend[1]}): the {settings.tier} "
-            f"tier's small-strain kinematics miss the rods' tilt and drop, and its per-rod contact forces are estimated "
-            f"{timings['geometric_error_estimate']:.0%} off the nonlinear tier's (fem.quasistatic.geometric_error_estimate: "
-            "4 x the bend, measured on a sphere dragging rods, up to the 30-70 % seen at bends over 6 %); "
-            'use fidelity.solve.rod_kinematics = "second_order" (about 10 % on a sphere dragging rods 10-15 deg), '
-            'fidelity.solve.tier = "nonlinear" for this load, or a smaller one')
     timings["contact_step_ms"] = step_ms.tolist()  # each step's contact solve (benchmarks take medians by kind of frame)
     if settings.contact_solver == "admm":
         timings["contact_worst_residual_n"] = worst["residual_n"]
@@ -598,35 +626,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     first, frame_of = _distinct_rows(loads.reshape(S, -1))
     U = len(first)
     if settings.tier == "reduced":
-        # (3 M, U) the points' loads summed per patch, zero away from the loaded rods; away from each rod's
-        # own tets and vertices its patches' loads act through its few far-field columns (far_field_basis)
-        patch_cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
-        to_patches = sp.csr_matrix((np.ones(3 * m), (patch_cols, np.arange(3 * m))), shape=(reduced.stress_coeff.shape[1], 3 * m))
-        Fp = to_patches @ loads[first].reshape(U, 3 * m).T
-        # float32 sums (the fields are stored as float32; the responses are float32), one row per
-        # stress or displacement component (6 T, U): a rod's own rows are then gathered as contiguous rows
-        stress = np.repeat(reduced.stress_gravity.astype(np.float32)[:, None], U, axis=1)
-        disp = np.repeat(reduced.displacement_gravity.astype(np.float32)[:, None], U, axis=1)
-        for basis_t, coeff, out in ((reduced.stress_basis, reduced.stress_coeff, stress), (reduced.displacement_basis, reduced.displacement_coeff, disp)):
-            c = (coeff @ Fp).astype(np.float32)  # (K, U), zero on the unloaded rods' columns
-            # the loaded rods' basis rows: a run of loaded rods is one contiguous block of the (K, n) basis
-            for lo, hi in _nonzero_runs(np.any(c != 0, axis=1)):
-                out += basis_t[lo:hi].T @ c[lo:hi]
-        # each rod's own tets and vertices: its points' responses to their forces, exact
-        for r, (rows_s, own_s, rows_d, own_d) in reduced.local_responses().items():
-            on_rod = np.flatnonzero(rod == r)
-            if not len(on_rod) or not np.any(loads[first][:, on_rod]):
-                continue  # (a rod near the path that the indenter never loads: the demo's 9 of 20)
-            all_on_rod = np.flatnonzero(reduced.point_rod == r)
-            local = np.searchsorted(all_on_rod, keep[on_rod])
-            # the rod's loads on all its points, zero off the path (no copy of the corrections' columns)
-            f_r = np.zeros((len(all_on_rod), 3, U), dtype=np.float32)
-            f_r[local] = np.moveaxis(loads[first][:, on_rod], 0, -1)
-            f_r = f_r.reshape(-1, U)
-            stress[rows_s] += own_s @ f_r
-            disp[rows_d] += own_d @ f_r
-        stress, disp = stress.T, disp.T
-        stress, disp = stress.reshape(U, 6, T), disp.reshape(U, -1, 3)
+        stress, disp = reduced_fields_of(reduced, keep, rod, loads[first])
+        stress, disp = stress.T.reshape(U, 6, T), disp.T.reshape(U, -1, 3)
         total = forces.sum(axis=1)
         reaction = -(total + reduced.weight_n)
     else:
@@ -650,6 +651,21 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     on_rod = rod >= 0
     rod_force = np.zeros((S, n_rods, 3))
     np.add.at(rod_force, (slice(None), rod[on_rod]), forces[:, on_rod])
+    if second_order:
+        # the estimate is of first-order kinematics; second order measured 7-11 % on the tiny slide (fem.rod_kinematics)
+        timings["geometric_error_estimate"] = float("nan")
+    else:
+        gravity = (reduced.displacement_gravity.reshape(-1, 3) if settings.tier == "reduced"
+                   else body.x_gravity[body.vertex_dofs.ravel()].reshape(-1, 3))
+        weights = np.bincount(frame_of[grid.frame_step], minlength=U)  # frames per distinct load
+        timings["geometric_error_estimate"] = geometric_error_estimate(scene, mesh, disp[first] - gravity[None], rod_force[first], weights,
+                                                                   setup.tip_z_m)
+        if timings["geometric_error_estimate"] > GEOMETRIC_WARNING and log is not None:
+            log(f"warning: the rods bend (contact points moved sideways up to {worst_bend[0]:.1%} of the rod height, step {worst_bend[1]}) and "
+                f"the {settings.tier} tier's small-strain kinematics keep their tips up: its per-rod contact forces are estimated "
+                f"{timings['geometric_error_estimate']:.0%} off the nonlinear tier's (fem.rod_kinematics.first_order_force_error, from this "
+                "episode's own field; it came within 1.1-1.2 x of the measured error on a flat punch and a rolled cylinder, and "
+                'overstates past the linear regime); use fidelity.solve.tier = "nonlinear" for this load, or a smaller one')
     timings["per_frame_ms"] = 1e3 * (timings["contact_steps"] + timings["fields"]) / grid.n_frames
     episode = Episode(settings.tier, settings.element, steps, grid.frame_step, pose_arr, target, stress, vm, sed, disp.astype(np.float32),
                       rod_force, total, -total[:, 2], reaction, iters, stick, mesh.points, mesh.tets, mesh.tet_rod, mesh.layer_fraction,
@@ -658,14 +674,12 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     return episode
 
 
-# The linear tiers' error against the nonlinear tier grows with how far the rods bend (the tiny scene's
-# sphere slide on the same 2.5 mm mesh, P2P1, indent 0.25-0.6 mm, mu 0.8; issue 15's diagnosis): per-rod
-# contact force about 3-4 x the tip's sideways travel over the rod height, rod-base von Mises about
-# 2 x, up to 6 % travel; beyond it the errors saturate at 30-70 %. A first-order body keeps the tips'
-# edges up where the tilted rods drop them (0.6 d^2 / L, and the tilt's cosine), so the indenter
-# overlaps them too much. The estimate below is the force line, capped where the measured errors saturate.
-GEOMETRIC_FORCE_ERROR_PER_BEND = 4.0
-GEOMETRIC_ERROR_SATURATION = 0.7  # the largest per-rod force error measured (bends of 6-18 %: 30-70 %)
+# The linear tiers' error against the nonlinear tier grows with how far the rods bend (issue 15's
+# diagnosis): a first-order body keeps the tips' edges up where the bent rods drop them, so the
+# indenter overlaps them too much. Each episode estimates the resulting per-rod force error from its
+# own field (geometric_error_estimate; until 2026-11 it was 4 x the tips' sideways travel over the rod
+# height, measured on a sphere dragging rods, which overstated a flat punch's and a rolled cylinder's
+# error 5-6 x) and warns above this:
 GEOMETRIC_WARNING = 0.10  # warn when the estimated per-rod contact force error exceeds this
 # hold steps (the indenter where the last step left it) reuse the last step's answer, which is their
 # fixed point (tests/test_contact_admm.py solves them anyway and compares)
@@ -694,11 +708,38 @@ def bending_ratio(du: np.ndarray, rod: np.ndarray, rod_height_m: float) -> float
     return float(np.linalg.norm(du[on, :2], axis=1).max() / rod_height_m) if on.any() else 0.0
 
 
-def geometric_error_estimate(bend: float) -> float:
+def geometric_error_estimate(scene, mesh, du: np.ndarray, rod_force_n: np.ndarray, weights: np.ndarray, tip_z_m: float) -> float:
     """Estimated relative error of the linear tiers' per-rod contact forces against the nonlinear
-    tier's at a :func:`bending_ratio` ``bend`` (see GEOMETRIC_FORCE_ERROR_PER_BEND): 4 x bend, at
-    most 0.7. An estimate from one measured load family (a sphere dragging rods), not a bound."""
-    return min(GEOMETRIC_FORCE_ERROR_PER_BEND * bend, GEOMETRIC_ERROR_SATURATION)
+    tier's, from an episode's displacement du (U, P, 3) m from the state without contact and its
+    per-rod contact forces (U, n_rods, 3) N, each distinct load weighted by its frames
+    (:func:`fem.rod_kinematics.first_order_force_error`: the tips' second-order drop that the
+    first-order body misses, through each rod's secant stiffness). NaN where the mesh's rods are
+    too coarse to be cut into sections."""
+    sections = _all_rod_sections(scene, mesh, tip_z_m)
+    if sections is None:
+        return float("nan")
+    return rod_kinematics.first_order_force_error(sections, mesh.points, du, rod_force_n, 0.5e-3 * scene.sensor.rod.diameter_mm, weights)
+
+
+_SECTIONS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _all_rod_sections(scene, mesh, tip_z_m: float) -> "rod_kinematics.RodSections | None":
+    """The section observation of all the mesh's rods (kept per mesh: 24 ms on the default sensor),
+    with the most slabs up to 8 that its vertex layers allow; None if not even 2 do."""
+    base_z = scene.sensor.base.thickness_mm * 1e-3
+    kept = _SECTIONS.setdefault(mesh, {})
+    key = (base_z, tip_z_m)
+    if key not in kept:
+        rods = np.arange(int(mesh.tet_rod.max()) + 1)
+        kept[key] = None
+        for n_slabs in (rod_kinematics.N_SLABS, 4, 2):
+            try:
+                kept[key] = rod_kinematics.rod_sections(mesh.points, mesh.tets, mesh.tet_rod, rods, base_z, tip_z_m, n_slabs)
+                break
+            except ValueError:  # a slab with fewer than 3 vertices
+                continue
+    return kept[key]
 
 
 def _check_small_strain(du: np.ndarray, rod: np.ndarray, rod_height_m: float, limit: float, case: str, tier: str) -> None:

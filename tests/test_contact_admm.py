@@ -342,8 +342,10 @@ def test_a_slide_sticks_then_slips_by_coulomb(tiny_mesh, body):
 
 def test_a_bending_load_warns_with_its_estimated_error(tiny_mesh, body):
     """The tiny scene's own load (a sphere pressed between the rods and slid 4 mm) bends the rods far
-    enough that the linear tier's small-strain kinematics are off (40-70 % against the nonlinear tier,
-    issue 15's diagnosis): the run says so with its estimate; a small press bends nothing and stays quiet."""
+    enough that the linear tier's small-strain kinematics are off (94 % on per-rod force against the
+    nonlinear tier at 2 mm, P2): the run says so with its estimate from its own field
+    (fem.rod_kinematics.first_order_force_error), which is large; a small press bends nothing and
+    stays quiet."""
     from mlsim.scene import load_scene
 
     scene0, _, mesh, _ = tiny_mesh
@@ -351,9 +353,8 @@ def test_a_bending_load_warns_with_its_estimated_error(tiny_mesh, body):
     scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "mavig_tiny.toml").with_values({"fidelity.solve.gravity": False})
     ep = qs.run_episode(scene, mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False), log=said.append)
     assert ep.seconds["rod_bending_ratio"] > 0.1  # tips dragged over a millimetre on 9 mm rods
-    assert ep.seconds["geometric_error_estimate"] == pytest.approx(
-        min(qs.GEOMETRIC_FORCE_ERROR_PER_BEND * ep.seconds["rod_bending_ratio"], qs.GEOMETRIC_ERROR_SATURATION))
-    assert any("small-strain kinematics" in m and "nonlinear" in m for m in said)
+    assert ep.seconds["geometric_error_estimate"] > 0.3
+    assert any("small-strain kinematics" in m and "nonlinear" in m and f"{ep.seconds['geometric_error_estimate']:.0%}" in m for m in said)
     said.clear()
     small = qs.run_episode(_scene(scene0, PRESS_HOLD, 0.5), mesh, body=body, settings=qs.SolveSettings(tier="linear", gravity=False), log=said.append)
     assert small.seconds["geometric_error_estimate"] < 0.02 and not any("kinematics" in m for m in said)

@@ -79,6 +79,39 @@ def test_the_pdelta_load_is_the_axial_force_times_the_tip_offset_over_the_height
     np.testing.assert_array_equal(load[:, 2], 0.0)
 
 
+def test_the_first_order_force_error_estimate_of_a_tilted_compressed_rod(tiny_mesh):
+    """fem.rod_kinematics.first_order_force_error on a field it must read exactly: rod 0 compressed by
+    c and tilted rigidly by phi about its base centre (a linear field: every section turns by phi, the
+    tip face's mean vertical displacement is -c). The missed drop is 1/2 phi^2 (L + a), so the force
+    error is F_z 1/2 phi^2 (L + a) / c; the estimate's norm is that over the rod's force; a rod with no
+    force, or a step with no tilt, adds nothing; weights count steps as frames."""
+    scene, _, mesh, _ = tiny_mesh
+    base_z, tip_z = scene.sensor.base.thickness_mm * 1e-3, qs.tip_height_m(mesh)
+    sec = rk.rod_sections(mesh.points, mesh.tets, mesh.tet_rod, [0, 1], base_z, tip_z)
+    L, a = sec.length_m, 2.5e-3
+    phi, c = 0.03, 0.4e-3
+    base_centre = np.array([*sec.centre[0, :2], base_z])
+    du = np.zeros((2, mesh.n_points, 3))
+    on_rod = np.zeros(mesh.n_points, bool)
+    on_rod[sec.vertices[0]] = True
+    r = mesh.points[on_rod] - base_centre
+    w = np.array([phi, 0.0, 0.0])  # a small rotation about x: u = w x r (linear in the vertices)
+    du[0, on_rod] = np.cross(w, r)
+    du[0, on_rod, 2] -= c * (mesh.points[on_rod, 2] - base_z) / L  # a uniform axial strain, -c at the tip
+    du[1, on_rod, 2] = -c * (mesh.points[on_rod, 2] - base_z) / L  # step 1: the same compression, no tilt
+    F = np.zeros((2, int(mesh.tet_rod.max()) + 1, 3))
+    F[:, 0] = [0.2, 0.0, -3.0]  # rod 0 pressed with 3 N (and a little shear)
+    theta, _ = sec.split(sec.O @ du[0].ravel())
+    np.testing.assert_allclose(theta[0], np.tile(w, (sec.n_slabs + 1, 1)), atol=1e-9)
+    expected_dF = 3.0 * 0.5 * phi**2 * (L + a) / c
+    norm_F = np.hypot(0.2, 3.0)
+    assert rk.first_order_force_error(sec, mesh.points, du[:1], F[:1], a) == pytest.approx(expected_dF / norm_F, rel=1e-6)
+    # the untilted step adds its force to the norm and no error; weights are frames per step
+    both = rk.first_order_force_error(sec, mesh.points, du, F, a, weights=np.array([1.0, 3.0]))
+    assert both == pytest.approx(expected_dF / (norm_F * 2.0), rel=1e-6)
+    assert rk.first_order_force_error(sec, mesh.points, du, np.zeros_like(F), a) == 0.0
+
+
 def test_the_fields_correction_is_q_at_the_tip_face(tiny_mesh, body, rod0_tip):
     _, _, mesh, _ = tiny_mesh
     kin, points, _, f = rod0_tip
