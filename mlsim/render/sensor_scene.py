@@ -80,8 +80,8 @@ _CUDA_STATUS: tuple[bool, str] | None = None
 
 
 def cuda_status() -> tuple[bool, str]:
-    """(True, the GPU's description) when Mitsuba's ``cuda_ad_mono`` starts here, else (False, why
-    not). Probed once per process (it costs a CUDA context, about a second); Mitsuba's current
+    """(True, "Mitsuba cuda_ad_mono started") when Mitsuba's ``cuda_ad_mono`` starts here and runs a
+    kernel, else (False, why not). Probed once per process (it costs a CUDA context, about a second); Mitsuba's current
     variant is left as it was."""
     global _CUDA_STATUS
     if _CUDA_STATUS is None:
