@@ -19,7 +19,7 @@ pytest.importorskip("mitsuba")
 
 from mlsim.render import render_frames  # noqa: E402
 from mlsim.render.sensor_scene import (DEVICES, SensorScene, cuda_status, resolve_device, use_variant,  # noqa: E402
-                                       variant_for)
+                                       variant_for, variant_starts)
 from mlsim.render.transport import trace_transport  # noqa: E402
 from test_render import N_ACRYLIC, N_CORE, _blocks, _flat_sheet, _fresnel_normal, _rod_sheet, _view  # noqa: E402
 
@@ -29,17 +29,7 @@ REFERENCE = Path(__file__).parent / "data" / "render_device_reference.npz"
 
 
 def _cpu_starts() -> bool:
-    import mitsuba as mi
-
-    before = mi.variant()
-    try:
-        use_variant("llvm_ad_mono")
-        return True
-    except RuntimeError:
-        return False
-    finally:
-        if before:
-            mi.set_variant(before)
+    return variant_starts("llvm_ad_mono")[0]
 
 
 # The project's GPU machines carry a Mitsuba wheel trimmed to its CUDA variants (no libLLVM there):

@@ -37,10 +37,12 @@ first, so mono and spectral scenes can be used in turn in one process.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-__all__ = ["VARIANT", "SPECTRAL_VARIANT", "DEVICES", "variant_for", "use_variant", "cuda_status", "resolve_device", "SensorScene",
-           "radiance_of"]
+__all__ = ["VARIANT", "SPECTRAL_VARIANT", "DEVICES", "variant_for", "use_variant", "cuda_status", "variant_starts", "resolve_device",
+           "SensorScene", "radiance_of"]
 
 VARIANT = "llvm_ad_mono"
 SPECTRAL_VARIANT = "llvm_ad_spectral"  # the spectral reference (mlsim.render.spectral)
@@ -76,20 +78,10 @@ def use_variant(variant: str = VARIANT):
     return mi
 
 
-_CUDA_STATUS: tuple[bool, str] | None = None
-
-
+@functools.cache
 def cuda_status() -> tuple[bool, str]:
     """(True, "Mitsuba cuda_ad_mono started") when Mitsuba's ``cuda_ad_mono`` starts here and runs a
-    kernel, else (False, why not). Probed once per process (it costs a CUDA context, about a second); Mitsuba's current
-    variant is left as it was."""
-    global _CUDA_STATUS
-    if _CUDA_STATUS is None:
-        _CUDA_STATUS = _probe_cuda()
-    return _CUDA_STATUS
-
-
-def _probe_cuda() -> tuple[bool, str]:
+    kernel, else (False, why not). Probed once per process (it costs a CUDA context, about a second)."""
     try:
         import drjit as dr
         import mitsuba as mi
@@ -99,15 +91,24 @@ def _probe_cuda() -> tuple[bool, str]:
         return False, "this Mitsuba build has no cuda_ad_mono variant"
     if not dr.has_backend(dr.JitBackend.CUDA):
         return False, "Dr.Jit found no CUDA driver or GPU (libcuda.so)"
+    return variant_starts("cuda_ad_mono")
+
+
+def variant_starts(variant: str) -> tuple[bool, str]:
+    """(True, "Mitsuba <variant> started") when Mitsuba's ``variant`` starts here and runs a kernel,
+    else (False, why not); Mitsuba's current variant is left as it was."""
+    import drjit as dr
+    import mitsuba as mi
+
     before = mi.variant()
     try:
-        mi.set_variant("cuda_ad_mono")
-        total = float(np.array(dr.sum(mi.Float([1.0, 2.0]))).ravel()[0])  # one kernel through the driver
+        mi.set_variant(variant)
+        total = float(np.array(dr.sum(mi.Float([1.0, 2.0]))).ravel()[0])  # one kernel through the back-end
         if total != 3.0:  # pragma: no cover - a broken driver
-            return False, f"a test sum on the GPU gave {total}, not 3"
-        return True, "Mitsuba cuda_ad_mono started"
+            return False, f"a test sum in {variant} gave {total}, not 3"
+        return True, f"Mitsuba {variant} started"
     except Exception as exc:
-        return False, f"Mitsuba's cuda_ad_mono failed to start ({type(exc).__name__}: {exc})"
+        return False, f"Mitsuba's {variant} failed to start ({type(exc).__name__}: {exc})"
     finally:
         if before and before != mi.variant():
             mi.set_variant(before)
