@@ -64,8 +64,11 @@ def solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
     m = r.shape[0]
     if mode == EIGEN:  # both products with Q (Q^T r as r^T Q: one matrix stays in cache, where Q and a
         # copy of Q^T took 1.6 x as long)
-        return (inverse @ (d_inv * (r.reshape(3 * m) @ inverse))).reshape(m, 3)
+        # (astype: numba types both modes for either precision of ``inverse``; a vector's copy each)
+        w = r.reshape(3 * m).astype(inverse.dtype) @ inverse
+        return (inverse @ (d_inv.astype(inverse.dtype) * w)).astype(np.float64).reshape(m, 3)
     flat = r.reshape(3 * m)
+    flat_in = flat.astype(inverse.dtype)  # the blocks' precision (float32: half the bytes streamed)
     v = np.empty(3 * m)
     summed = np.zeros(3 * n_rods)
     inverses = inverse[0]
@@ -75,7 +78,7 @@ def solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
         a, end = rod[start], _rod_end(rod, start)
         lo, hi = 3 * start, 3 * end
         nb = hi - lo
-        v[lo:hi] = inverses[offset : offset + nb * nb].reshape(nb, nb) @ flat[lo:hi]
+        v[lo:hi] = inverses[offset : offset + nb * nb].reshape(nb, nb) @ flat_in[lo:hi]
         for i in range(start, end):
             for c in range(3):
                 summed[3 * a + c] += v[3 * i + c]
@@ -335,7 +338,8 @@ def warm_up() -> None:
     if _warm:
         return
     one = np.ones((1, 3)) / math.sqrt(3.0)
-    for mode, inverse, d_inv in ((EIGEN, np.eye(3), np.ones(3)), (ROD_BLOCKS, np.eye(3).reshape(1, 9), np.ones(3))):
+    for mode, inverse, d_inv in ((EIGEN, np.eye(3), np.ones(3)), (ROD_BLOCKS, np.eye(3).reshape(1, 9), np.ones(3)),
+                                 (ROD_BLOCKS, np.eye(3, dtype=np.float32).reshape(1, 9), np.ones(3))):
         args = (mode, inverse, np.eye(3), np.zeros((3, 3)), d_inv, np.zeros(1, dtype=np.int64), 1, 1.0, -one, one, 0.5)
         run(*args, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), 0, 1, 1e-4, 0.0)
         run_anderson(*args, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), 0, 3, 1e-4, 0.0, 2, np.zeros(1, dtype=np.int64), 10)

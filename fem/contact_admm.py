@@ -90,6 +90,13 @@ SECOND_ORDER_RTOL = 1e-2
 # 0 after). Default demo (a flat punch on whole tips): 1588 -> 1542 iterations; tiny scene: 486 -> 391
 # iterations, 8.4 -> 9.9 ms (its sub-blocks' diagonalisation costs more than the iterations it saves)
 WHOLE_ROD_FRACTION = 0.5
+# The rod blocks' inverses are streamed once per ADMM iteration (the default demo's 11 tips: 760 KB in
+# float64, more than a core's share of L2), so solves at rtol >= this use a float32 copy (its rounding,
+# 6e-8 relative, is far below the tolerance): reduced tier, default demo 4.0 -> 3.5 ms per frame, its
+# forces within 1 mN of float64's except the release step that stops at its bound (50 mN of 3.4 N).
+# Tighter solves (force control, rtol 1e-7) keep float64: in float32 the screw scene's took 20 % more
+# iterations
+SINGLE_PRECISION_RTOL = 1e-6
 SUB_OPERATORS_KEPT = 64  # restricted operators (and their rho ladders) kept per operator
 SUB_BLOCKS_KEPT = 1024  # diagonalised sub-blocks kept per operator
 INVERSES_KEPT = 512  # the blocks' explicit inverses, per rho, kept per operator (a tip's: 93^2 doubles)
@@ -170,9 +177,10 @@ class _Delassus:
             self.factorisations += 1
         return self._factors[rung]
 
-    def kernel_operator(self, rung: int) -> tuple:
+    def kernel_operator(self, rung: int, single: bool = False) -> tuple:
         """The factor of rung in the form :func:`fem.admm_kernels.run` takes:
-        (mode, inverse, K, Y, d_inv, groups, n_groups)."""
+        (mode, inverse, K, Y, d_inv, groups, n_groups); ``single``: the rod blocks' inverses in
+        float32 where the operator has them (see :data:`SINGLE_PRECISION_RTOL`)."""
         raise NotImplementedError  # pragma: no cover - abstract
 
 
@@ -208,7 +216,7 @@ class DenseDelassus(_Delassus):
     def _solve(self, factor, r, rho):
         return (self.Q @ (factor * (r.ravel() @ self.Q))).reshape(-1, 3)
 
-    def kernel_operator(self, rung):
+    def kernel_operator(self, rung, single: bool = False):
         return admm_kernels.EIGEN, self.Q, _EMPTY_2D, _EMPTY_2D, self._factor(rung), _EMPTY_INT, 0
 
 
@@ -365,15 +373,15 @@ class RodBlockDelassus(_Delassus):
         K = np.linalg.solve(np.eye(3 * self.n_rods) + self.H @ T, self.H)
         Y = np.concatenate(Ys) if Ys else np.zeros((0, 3))
         inverse_flat = np.concatenate(inverses)[None, :] if inverses else np.zeros((1, 0))
-        return np.ascontiguousarray(K), np.ascontiguousarray(Y), inverse_flat
+        return np.ascontiguousarray(K), np.ascontiguousarray(Y), inverse_flat, inverse_flat.astype(np.float32)
 
     def _solve(self, factor, r, rho):
-        K, Y, inverse_flat = factor
+        K, Y, inverse_flat, _ = factor
         return admm_kernels.solve(admm_kernels.ROD_BLOCKS, inverse_flat, K, Y, _EMPTY_1D, self._rod_int, self.n_rods, np.ascontiguousarray(r, dtype=float))
 
-    def kernel_operator(self, rung):
-        K, Y, inverse_flat = self._factor(rung)
-        return admm_kernels.ROD_BLOCKS, inverse_flat, K, Y, _EMPTY_1D, self._rod_int, self.n_rods
+    def kernel_operator(self, rung, single: bool = False):
+        K, Y, inverse_flat, inverse_single = self._factor(rung)
+        return admm_kernels.ROD_BLOCKS, inverse_single if single else inverse_flat, K, Y, _EMPTY_1D, self._rod_int, self.n_rods
 
 
 def _block_inverse(lam: np.ndarray, Q: np.ndarray, rho: float) -> tuple:
@@ -481,7 +489,7 @@ def admm_contact(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float, f0: np.n
     while True:
         if rungs_seen is not None:
             rungs_seen.add((G.key, rung))
-        operator = G.kernel_operator(rung)
+        operator = G.kernel_operator(rung, single=rtol >= SINGLE_PRECISION_RTOL)
         common = (*operator, G.rho(rung), b, n, float(mu), y, z, s, it, int(max_iterations), float(rtol), float(f_scale))
         if memory > 0:
             status, it, primal, dual, tol = admm_kernels.run_anderson(*common, memory, rejections, ANDERSON_MAX_REJECTIONS)

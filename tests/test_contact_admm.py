@@ -155,6 +155,33 @@ def test_the_rod_block_operator_is_the_dense_one_of_its_compliance():
         ca.RodBlockDelassus(rods.blocks, rods.H, rod[::-1], 1.0 / rods.inv_k)
 
 
+def test_loose_solves_stream_the_rod_blocks_in_single_precision(monkeypatch):
+    """At rtol >= SINGLE_PRECISION_RTOL the compiled iterations take the rod blocks' inverses in
+    float32: the solve is float64's to float32 rounding (not exactly: the copy is used), and the
+    contact forces agree with a float64 solve within the tolerance. Tighter solves keep float64."""
+    from fem import admm_kernels as ak
+
+    rods, _, _, rod, rng = _rod_block_problem(41, sizes=(9, 12, 6, 8))
+    m = len(rod)
+    for rung in (-2, 0, 3):
+        single, double = rods.kernel_operator(rung, single=True), rods.kernel_operator(rung)
+        assert single[1].dtype == np.float32 and double[1].dtype == np.float64
+        r = rng.standard_normal((m, 3))
+        x32, x64 = ak.solve(*single, r), ak.solve(*double, r)
+        err = np.abs(x32 - x64).max() / np.abs(x64).max()
+        assert 0.0 < err < 1e-5
+    n = np.tile([0.0, 0.0, 1.0], (m, 1))
+    b = 1e-6 * rng.standard_normal((m, 3))
+    b[:, 2] = -1e-5 * rng.uniform(0.5, 1.5, m)
+    rtol = 1e-5
+    assert rtol >= ca.SINGLE_PRECISION_RTOL
+    f32, *_, res32, tol32 = ca.admm_contact(rods, b, n, MU, rtol=rtol, max_iterations=20000)
+    monkeypatch.setattr(ca, "SINGLE_PRECISION_RTOL", np.inf)  # every solve in float64
+    f64, *_, res64, tol64 = ca.admm_contact(rods, b, n, MU, rtol=rtol, max_iterations=20000)
+    assert res32 <= tol32 and res64 <= tol64
+    np.testing.assert_allclose(f32, f64, atol=20 * tol64)
+
+
 def test_the_solve_on_the_touching_rods_is_the_solve_on_all():
     """Rods none of whose points reach the indenter unloaded are left out of the ADMM and checked
     after; one that the others' loads pull into contact (through the coupling) is added. The forces
