@@ -425,24 +425,14 @@ def rod_resultant_coupling(C: np.ndarray, rod: np.ndarray, weight: np.ndarray) -
 
 
 def project_cone(v: np.ndarray, n: np.ndarray, mu: float) -> np.ndarray:
-    """Euclidean projection of v (m, 3) onto the friction cones {|v_T| <= mu v_n} about the unit normals n (m, 3)."""
-    vn = np.einsum("ij,ij->i", v, n)
-    vt = v - vn[:, None] * n
-    t = np.linalg.norm(vt, axis=1)
-    inside = t <= mu * vn
-    polar = mu * t <= -vn
-    a = (vn + mu * t) / (1.0 + mu * mu)  # the normal part of the projection onto the cone's surface
-    scale = np.divide(mu * a, t, out=np.zeros_like(t), where=t > 0)
-    out = a[:, None] * n + scale[:, None] * vt
-    out[inside] = v[inside]
-    out[polar] = 0.0
-    return out
+    """Euclidean projection of v (m, 3) onto the friction cones {|v_T| <= mu v_n} about the unit normals n (m, 3)
+    (compiled: :func:`fem.admm_kernels.project_cones`, the iterations' own projection)."""
+    return admm_kernels.project_cones(np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(n, dtype=float), float(mu))
 
 
 def de_saxce(sigma: np.ndarray, n: np.ndarray, mu: float) -> np.ndarray:
-    """De Saxce's correction Gamma(sigma) = mu |sigma_T| n (m, 3)."""
-    sn = np.einsum("ij,ij->i", sigma, n)
-    return (mu * np.linalg.norm(sigma - sn[:, None] * n, axis=1))[:, None] * n
+    """De Saxce's correction Gamma(sigma) = mu |sigma_T| n (m, 3) (compiled: :func:`fem.admm_kernels.de_saxce`)."""
+    return admm_kernels.de_saxce(np.ascontiguousarray(sigma, dtype=float), np.ascontiguousarray(n, dtype=float), float(mu))
 
 
 @dataclass

@@ -39,6 +39,7 @@ are backward differences over one step (:class:`Episode`).
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 import weakref
@@ -46,7 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from fem import condensed, contact_admm, fields, rod_kinematics, trajectory
 from fem.episode import (  # the shared pieces, here too for fem.quasistatic's callers
@@ -362,6 +363,13 @@ def reduced_fields_of(reduced: "ReducedModel", keep: np.ndarray, rod: np.ndarray
     return stress, disp
 
 
+@functools.cache
+def _blas_threads() -> ThreadpoolController:
+    """The process's BLAS thread pools, found once (threadpoolctl's ``threadpool_limits`` scans the
+    loaded libraries on every call: 0.2 ms, per episode)."""
+    return ThreadpoolController()
+
+
 def _nonzero_runs(nonzero: np.ndarray) -> list[tuple[int, int]]:
     """Index ranges [lo, hi) of the runs of True in ``nonzero``."""
     edges = np.flatnonzero(np.diff(np.r_[0, nonzero.astype(np.int8), 0]))
@@ -536,7 +544,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     # the contact steps are many small dense products (3 m = 1095 on the demo): BLAS threads cost more
     # in synchronisation than they gain there (default demo, linear tier: 93 ms of contact per frame on
     # 2 threads, 68 ms on 1)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _blas_threads().limit(limits=1, user_api="blas"):
         for s, t in enumerate(steps):
             t_step = time.perf_counter()
             state = trajectory.advance(load, state, t, normal_now)

@@ -73,6 +73,32 @@ def test_factorised_solve_of_a_free_body_raises(backend):
     assert "rigid" in str(e.value) or "singular" in str(e.value) or "PARDISO" in str(e.value)
 
 
+@pytest.mark.skipif("pardiso" not in available_backends(), reason="MKL PARDISO (pypardiso) is not installed on this machine")
+def test_pardiso_runs_in_mkls_reproducible_mode():
+    """Without MKL's conditional numerical reproducibility its threaded PARDISO rounds differently
+    from one process to the next (the default sensor's gravity state: 1 process in 6), so the same
+    scene gave different contact iterations; fem.linsolve switches the mode on (AUTO) unless the user
+    set MKL_CBWR. A race shows too seldom to test here directly: the mode is checked, and that two
+    factorisations in one process give the same bits."""
+    import ctypes
+    import os
+
+    from fem import linsolve
+
+    if os.environ.get("MKL_CBWR"):
+        pytest.skip("MKL_CBWR is set in the environment: the user's choice of mode stands")
+    lib = linsolve._pardiso_library().libmkl
+    lib.MKL_CBWR_Get.restype, lib.MKL_CBWR_Get.argtypes = ctypes.c_int, [ctypes.c_int]
+    assert lib.MKL_CBWR_Get(1) == linsolve.MKL_CBWR_AUTO  # 1: MKL_CBWR_BRANCH, the code path chosen
+    d = _cube("P2", n=4)
+    K = assemble(d, LAM, MU)
+    free = np.setdiff1d(np.arange(d.n_dofs), np.flatnonzero(d.u.doflocs[2][: d.n_u] < 1e-9))
+    Kff = K[free][:, free]
+    B = np.random.default_rng(3).normal(size=(Kff.shape[0], 3))
+    first, second = (factorise(Kff, definite=True, backend="pardiso").solve(B) for _ in range(2))
+    assert first.tobytes() == second.tobytes()
+
+
 # ---------------------------------------------------------------------------------- stress
 @pytest.mark.parametrize("element", ["P1", "P2", "P2P1"])
 def test_stress_operator_is_exact_for_a_linear_field(element):
