@@ -219,10 +219,9 @@ def _spd_solve(A, k, rhs):
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
 def _dot(a, b):
-    """a . b of two equal-length vectors, compiled in place of BLAS: OpenBLAS's products gave the
-    screw scene's episode 2267 or 2270 iterations from one process to the next with 2 threads and 2276
-    with one (its reductions' order follows its threads), where a compiled loop's order is fixed
-    (``reassoc`` lets it vectorise: the order is that of the compiled vector code, the same every run)."""
+    """a . b of two equal-length vectors, a compiled loop (``reassoc`` lets it vectorise; its order is
+    that of the compiled code, the same every run). (The process-to-process differences in iterations
+    first blamed on BLAS here were MKL PARDISO's: :func:`fem.linsolve._reproducible`.)"""
     acc = 0.0
     for k in range(a.shape[0]):
         acc += a[k] * b[k]

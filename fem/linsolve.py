@@ -17,6 +17,7 @@ error instead of returning garbage.
 from __future__ import annotations
 
 import ctypes
+import os
 import weakref
 
 import numpy as np
@@ -110,8 +111,6 @@ def _reproducible(libmkl) -> None:
     and the screw scene's reduced episode then took 2270 contact iterations instead of 2267. With it
     every process on one machine gets the same bits (MKL's own condition: the same CPU and thread
     count), at no measured cost (factorisation 2.7 s, a right-hand side 58 ms, as before)."""
-    import os
-
     if os.environ.get("MKL_CBWR"):
         return
     try:
