@@ -104,6 +104,8 @@ __all__ = [
     "sample_displacement",
     "reactions",
     "strain_magnitude",
+    "principal_strain",
+    "strain_beyond_break",
     "min_det_f",
     "run",
     "summary",
@@ -878,6 +880,34 @@ def strain_magnitude(s: CaseSystem, x: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("ijtq,ijtq->tq", eps, eps)).max(axis=1)
 
 
+def principal_strain(s: CaseSystem, x: np.ndarray, finite: bool) -> np.ndarray:
+    """(T, Q) the largest principal strain at every quadrature point of a state x (n,).
+
+    finite: the largest principal stretch minus one, sqrt(max eig(C)) - 1 with C = F^T F: the
+    engineering strain that an elongation at break is measured in (a uniaxial test's elongation is
+    the stretch minus one). Otherwise the largest eigenvalue of the small strain, which is the linear
+    tier's estimate of the same number (equal to first order in the displacement gradient).
+    """
+    g = np.moveaxis(np.asarray(s.d.u.interpolate(x[: s.d.n_u]).grad), (0, 1), (-2, -1))  # (T, Q, 3, 3)
+    if finite:
+        F = g + np.eye(3)
+        return np.sqrt(np.linalg.eigvalsh(np.swapaxes(F, -1, -2) @ F)[..., -1]) - 1.0
+    return np.linalg.eigvalsh(0.5 * (g + np.swapaxes(g, -1, -2)))[..., -1]
+
+
+def strain_beyond_break(s: CaseSystem, x: np.ndarray, elongation_at_break: float, finite: bool, label: int = 0) -> tuple[float, float]:
+    """(largest principal strain, volume in mm^3 strained beyond ``elongation_at_break``) over the
+    elements of ``label`` (0: the elastomer) of a state x (n,); see :func:`principal_strain`.
+
+    The volume is the quadrature measure of the points beyond the limit. Unlike the largest strain,
+    which is singular at the bonded sharp edges (the rod's rim, the block's edges: it grows as the
+    mesh is refined), that volume converges with the mesh: it says how much elastomer the load tears.
+    """
+    eps = principal_strain(s, x, finite)[s.mesh.label == label]
+    dx = np.asarray(s.d.u.dx)[s.mesh.label == label]
+    return float(eps.max()), float(dx[eps > elongation_at_break].sum() * 1e9)
+
+
 @dataclass(eq=False)
 class VerifyS2Result:
     """Everything :func:`run` computed.
@@ -885,7 +915,9 @@ class VerifyS2Result:
     forces_n: (K,); x_slab_mm, x_spec_mm: (N,) profile abscissae; displacement_mm[(tier, case)]:
     (K, 3, N) (ux, uy, uz; NaN where not converged); converged[(tier, case)]: (K,) bool;
     mesh[case], linear[case]: reports; nonlinear[case]: a report per force; checks: derived numbers
-    (linearity, block rigidity); seconds: wall time per stage; messages: what went wrong, if anything.
+    (linearity, block rigidity); seconds: wall time per stage; messages: what went wrong, if anything;
+    material_range[(tier, case)]: the elastomer's largest principal strain and the volume strained
+    beyond its elongation at break, per force (:func:`strain_beyond_break`).
     """
 
     spec: object
@@ -902,6 +934,19 @@ class VerifyS2Result:
     seconds: dict = field(default_factory=dict)
     messages: list = field(default_factory=list)
     reading: Reading = field(default_factory=lambda: Reading(measure="slab_top"))
+    # (tier, case) -> {"max_principal_strain": (K,), "volume_beyond_break_mm3": (K,)} over the elastomer
+    material_range: dict = field(default_factory=dict)
+    elongation_at_break: float | None = None  # of the elastomer (slab_material); None when unknown
+
+    def within_break(self, tier: str) -> np.ndarray:
+        """(K,) bool: neither case strains any elastomer beyond its elongation at break at this force
+        (all True when the elongation at break is unknown; False where a state did not converge)."""
+        ok = np.ones(len(self.forces_n), dtype=bool)
+        for case in CASES:
+            rng = self.material_range.get((tier, case))
+            if rng is not None:
+                ok &= np.asarray(rng["volume_beyond_break_mm3"]) == 0.0
+        return ok
 
     @property
     def tiers(self) -> tuple[str, ...]:
@@ -944,6 +989,25 @@ def nonlinear_edge_length_mm(spec) -> float:
     return NONLINEAR_EDGE_MM if value is None else float(value)
 
 
+def _check_material_range(result: VerifyS2Result, s: CaseSystem, states: np.ndarray, tier: str, case: str, material: str) -> None:
+    """Record the elastomer's largest principal strain and the volume beyond its elongation at break
+    per force (NaN where not converged), and say in the messages from which force the load tears it."""
+    limit = result.elongation_at_break
+    per_force = np.array([
+        strain_beyond_break(s, x, limit, finite=tier == "nonlinear") if np.all(np.isfinite(x)) else (np.nan, np.nan)
+        for x in states
+    ])
+    result.material_range[(tier, case)] = {"max_principal_strain": per_force[:, 0], "volume_beyond_break_mm3": per_force[:, 1]}
+    torn = np.flatnonzero(per_force[:, 1] > 0.0)
+    if torn.size:
+        k = torn[np.argmin(result.forces_n[torn])]
+        result.messages.append(
+            f"{tier} {case}: from {result.forces_n[k]:g} N on, the load strains {material} beyond its elongation at break "
+            f"({limit:.1%}): {per_force[k, 1]:.3g} mm^3 of it (largest principal strain {per_force[k, 0]:.0%}). The set-up "
+            "tears the elastomer there: the displacements and the ratio at those forces are not a physical prediction"
+        )
+
+
 def run(
     spec,
     progress: bool = False,
@@ -971,6 +1035,12 @@ def run(
     pts = profile_points(spec, geom)
     x_slab_mm = pts[0] * 1e3
     result = VerifyS2Result(spec, forces, x_slab_mm, x_slab_mm - (geom.centre_m[0] * 1e3 - SPEC_ROD_CENTRE_X_MM), reading=reading)
+    result.elongation_at_break = getattr(getattr(by_label[0], "elongation_at_break", None), "value", None)
+    if result.elongation_at_break is None:
+        result.messages.append(
+            f"{spec.slab_material} has no elongation at break: the forces cannot be checked against the material's range "
+            f"(give elongation_at_break in the scene's [materials.{spec.slab_material}])"
+        )
     steps = len(CASES) * 3 * len(spec.tiers)
     bar = tqdm(total=steps, desc="verify_s2", disable=None if progress else True, leave=False)
     systems: dict = {}
@@ -1016,6 +1086,8 @@ def run(
                                 "an element crushed near a sharp bonded edge, so this value depends on the mesh"
                             )
                 result.seconds[f"{tier}_{case}"] = time.perf_counter() - t0
+                if result.elongation_at_break is not None:
+                    _check_material_range(result, s, states, tier, case, by_label[0].name)
                 result.displacement_mm[(tier, case)] = sample_displacement(s, states, pts) * 1e3
                 result.measured_mm[(tier, case)] = measure_stats(s, states, geom, reading.measure, spec)
                 result.converged[(tier, case)] = ok
@@ -1052,6 +1124,14 @@ def summary(result: VerifyS2Result) -> dict:
         for f, good in zip(result.forces_n, ok)
         if not good
     ]
+    material_range = {
+        t: {
+            c: {key: _per_force(result.forces_n, np.asarray(values)) for key, values in result.material_range[(t, c)].items()}
+            for c in CASES
+            if (t, c) in result.material_range
+        }
+        for t in result.tiers
+    }
     return {
         "ratio_max_sliding_over_pressing": ratio_max,
         "ratio_mean_sliding_over_pressing": ratio_mean,
@@ -1065,6 +1145,9 @@ def summary(result: VerifyS2Result) -> dict:
         "not_converged": not_converged,
         "messages": list(result.messages),
         "seconds": result.seconds,
+        "elongation_at_break": result.elongation_at_break,
+        "material_range": material_range,
+        "within_break": {t: _per_force(result.forces_n, result.within_break(t).astype(float)) for t in result.tiers},
     }
 
 
@@ -1093,13 +1176,21 @@ def _profiles_csv(result: VerifyS2Result) -> str:
 
 def _ratio_csv(result: VerifyS2Result) -> str:
     # the displacements are measured where the reading says (result.reading.measure), written in each row
-    lines = ["tier,measure,force_n,sliding_max_u_mm,pressing_max_u_mm,ratio_max,sliding_mean_u_mm,pressing_mean_u_mm,ratio_mean"]
+    # and the elastomer's volume strained beyond its elongation at break per case (NaN when unknown)
+    lines = [
+        "tier,measure,force_n,sliding_max_u_mm,pressing_max_u_mm,ratio_max,sliding_mean_u_mm,pressing_mean_u_mm,ratio_mean,"
+        "sliding_volume_beyond_break_mm3,pressing_volume_beyond_break_mm3,within_break"
+    ]
+    nan = np.full(len(result.forces_n), np.nan)
     for tier in result.tiers:
         s = {stat: result.measured(tier, "sliding", stat) for stat in ("max", "mean")}
         p = {stat: result.measured(tier, "pressing", stat) for stat in ("max", "mean")}
+        torn = {c: result.material_range.get((tier, c), {}).get("volume_beyond_break_mm3", nan) for c in CASES}
+        within = result.within_break(tier)
         for k, f in enumerate(result.forces_n):
             vals = [s["max"][k], p["max"][k], s["max"][k] / p["max"][k], s["mean"][k], p["mean"][k], s["mean"][k] / p["mean"][k]]
-            lines.append(f"{tier},{result.reading.measure},{f:g}," + ",".join(f"{v:.9g}" for v in vals))
+            vals += [torn["sliding"][k], torn["pressing"][k]]
+            lines.append(f"{tier},{result.reading.measure},{f:g}," + ",".join(f"{v:.9g}" for v in vals) + f",{int(within[k])}")
     return "\n".join(lines) + "\n"
 
 
@@ -1129,12 +1220,15 @@ def _plot(result: VerifyS2Result, path: Path) -> None:
         ax.legend(fontsize=7)
     ax = axes[-1]
     for tier, marker in zip(tiers, "os"):
-        ax.plot(result.forces_n, result.ratio(tier, "max"), marker + "-", label=f"{tier}, max |u|")
-        ax.plot(result.forces_n, result.ratio(tier, "mean"), marker + ":", label=f"{tier}, mean |u|")
+        torn = ~result.within_break(tier)
+        for stat, style in (("max", "-"), ("mean", ":")):
+            line = ax.plot(result.forces_n, result.ratio(tier, stat), marker + style, label=f"{tier}, {stat} |u|")[0]
+            if torn.any():  # hollow: the elastomer is strained beyond its elongation at break there
+                ax.plot(result.forces_n[torn], result.ratio(tier, stat)[torn], marker, mfc="white", color=line.get_color())
     ax.set_xscale("log", base=2)
     ax.set_xlabel("lateral force (N)")
     ax.set_ylabel("sliding / pressing displacement")
-    ax.set_title("ratio per force")
+    ax.set_title("ratio per force (hollow: elastomer beyond its break)")
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, format="png", dpi=120)

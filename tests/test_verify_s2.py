@@ -224,6 +224,67 @@ def test_sliding_moves_the_slab_top_less_than_the_steel_block(linear_run):
     assert 0 < spread < 1e-3  # |u| / F is constant to the gravity's share
 
 
+# ------------------------------------------------------------------- the elastomer's range
+def _affine_state(s, A):
+    """A state (n,) whose displacement is u = A X (X in m) and whose pressure is zero."""
+    x = np.zeros(s.d.n_dofs)
+    comp = dof_components(s.d.u)
+    coords = s.d.u.doflocs  # (3, n_u) m
+    x[: s.d.n_u] = np.einsum("ij,jn->in", A, coords)[comp, np.arange(s.d.n_u)]
+    return x
+
+
+@pytest.mark.parametrize("finite", [False, True])
+def test_principal_strain_of_homogeneous_deformations(finite, pressing):
+    """Uniaxial stretch a: a in both measures. Simple shear g: g / 2 in the small strain, and
+    the largest principal stretch g / 2 + sqrt(1 + g^2 / 4) minus one at finite strain."""
+    a, g = 0.3, 0.8
+    stretch = v.principal_strain(pressing, _affine_state(pressing, np.diag([a, 0.0, 0.0])), finite)
+    assert stretch == pytest.approx(np.full(stretch.shape, a), abs=1e-12)
+    shear = np.zeros((3, 3))
+    shear[0, 2] = g
+    expected = (g / 2 + math.sqrt(1 + g * g / 4) - 1.0) if finite else g / 2
+    got = v.principal_strain(pressing, _affine_state(pressing, shear), finite)
+    assert got == pytest.approx(np.full(got.shape, expected), abs=1e-12)
+
+
+def test_volume_beyond_break_is_the_elastomer_past_the_limit(pressing):
+    """u_x = c x^2 strains the slab by 2 c x along x; with the limit reached at x = 7 mm (a grid
+    plane) the volume beyond it is the slab's x > 7 mm: 3 x 10 x 2 = 60 mm^3, the steel block
+    (label 1, not the elastomer) excluded though it is strained too."""
+    limit = 0.631
+    c = limit / (2 * 7e-3)
+    x = np.zeros(pressing.d.n_dofs)
+    comp = dof_components(pressing.d.u)
+    loc = pressing.d.u.doflocs
+    along_x = comp == 0
+    x[: pressing.d.n_u][along_x] = c * loc[0, along_x] ** 2
+    largest, volume = v.strain_beyond_break(pressing, x, limit, finite=False)
+    assert volume == pytest.approx(60.0, rel=1e-9)
+    assert largest == pytest.approx(2 * c * 10e-3, rel=1e-2)  # at the quadrature point nearest x = 10 mm
+    assert v.strain_beyond_break(pressing, x, 2 * c * 10e-3, finite=False)[1] == 0.0
+
+
+def test_the_spec_forces_strain_pdms_beyond_its_break(linear_run):
+    """SPEC 1.4's forces on SPEC 1.2's PDMS (elongation at break < 63.1 %): already at 1 N both cases
+    strain some PDMS beyond break (at the bonded edges), and the torn volume grows with the force.
+    The run says so in its messages, its summary and the ratio table, and marks no force as within."""
+    result, summary, paths = linear_run
+    assert result.elongation_at_break == pytest.approx(0.631)
+    for case in v.CASES:
+        volume = np.asarray(result.material_range[("linear", case)]["volume_beyond_break_mm3"])
+        assert np.all(volume > 0) and np.all(np.diff(volume) > 0)
+        assert summary["material_range"]["linear"][case]["volume_beyond_break_mm3"]["4"] == pytest.approx(volume[-1])
+        assert any(m.startswith(f"linear {case}: from 1 N on") and "elongation at break (63.1%)" in m for m in result.messages)
+    assert not result.within_break("linear").any()
+    assert summary["within_break"]["linear"] == {"1": 0.0, "2": 0.0, "4": 0.0}
+    ratio_csv = next(p for p in paths if p.name == "verify_s2_ratio.csv")
+    with open(ratio_csv, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["within_break"]) for r in rows] == [0, 0, 0]
+    assert float(rows[1]["pressing_volume_beyond_break_mm3"]) == pytest.approx(result.material_range[("linear", "pressing")]["volume_beyond_break_mm3"][1])
+
+
 # ---------------------------------------------------------------------------- nonlinear tier
 @pytest.mark.parametrize("case", v.CASES)
 def test_nonlinear_agrees_with_linear_at_a_small_force(case, pressing, sliding):
@@ -239,6 +300,10 @@ def test_nonlinear_agrees_with_linear_at_a_small_force(case, pressing, sliding):
     u_non = np.linalg.norm(v.sample_displacement(s, non, points), axis=1).max()
     assert u_non == pytest.approx(u_lin, rel=0.02)
     assert u_non != pytest.approx(u_lin, rel=1e-6)  # a different model, not the linear answer again
+    # the finite principal strain is the small strain's to first order: 1 % at these ~1 % strains
+    eps_lin = v.principal_strain(s, lin[0], finite=False)
+    eps_non = v.principal_strain(s, non[0], finite=True)
+    assert np.abs(eps_non - eps_lin).max() < 0.03 * np.abs(eps_lin).max()
 
 
 def test_a_force_that_does_not_converge_is_nan_with_a_message(pressing):
