@@ -48,6 +48,12 @@ Modelling choices (not given by SPEC 1.4):
   number; the larger forces are then not attempted (their load path passes through it).
 - Ratios: sliding over pressing, of the maximum and of the mean displacement magnitude along the
   profile, per tier and force.
+- The material's range: per tier, case and force, the elastomer's largest principal strain and the
+  volume strained beyond its elongation at break (:func:`strain_beyond_break`; PDMS < 63.1 %, SPEC
+  1.2). SPEC 1.4's forces all exceed it with these sizes (a rod 4 mm across bent by 1 N at 2 mm
+  already sees a beam-theory surface strain of 32 F h / (pi d^3 E) = 58 %, before the bonded rim's
+  concentration): such ratios describe an elastomer that would have torn, and the run says so
+  rather than reporting them as predictions.
 
 Shapes: ``points`` (P, 3) m; ``tets`` (T, 4); DOF vectors are scikit-fem's ``[u; p / scale]``.
 """
