@@ -233,6 +233,42 @@ def test_a_rods_load_reaches_the_rest_of_the_sensor_as_its_resultant(tiny_mesh, 
     assert np.all((per_rod >= 5) & (per_rod <= 7)), per_rod
 
 
+def test_the_field_recovery_drops_only_the_far_fields_small_entries(tiny_mesh, body, monkeypatch):
+    """ReducedModel.far_field_rows keeps each far-field basis vector's entries of at least
+    FAR_FIELD_DROP of its largest, and reduced_fields_of then differs from the dense superposition
+    (basis^T coeff, in float64) by at most the dropped entries' bound, sum_k |c_k| drop peak_k."""
+    scene0, _, mesh, _ = tiny_mesh
+    red = qs.build_reduced(scene0, mesh, body, qs.SolveSettings(tier="reduced", gravity=False))
+    A = red.far_field_rows("stress").toarray()
+    B = red.stress_basis.T.astype(float)
+    peak = np.abs(B).max(axis=0)
+    kept = np.abs(B) >= qs.FAR_FIELD_DROP * peak
+    np.testing.assert_array_equal(A, np.where(kept, B, 0.0).astype(np.float32))
+    assert 0.0 < kept.mean() < 0.5  # the basis vectors decay away from their rod
+
+    rng = np.random.default_rng(0)
+    keep = np.flatnonzero(red.point_rod == red.point_rod[0])  # one rod's points, loaded
+    loads = rng.standard_normal((3, len(keep), 3))
+    stress, _ = qs.reduced_fields_of(red, keep, red.point_rod[keep], loads)
+    Fp = np.zeros((red.stress_coeff.shape[1], 3))
+    np.add.at(Fp, (3 * red.point_patch[keep][:, None] + np.arange(3)).ravel(), loads.reshape(3, -1).T)
+    c = red.stress_coeff @ Fp  # (K, U)
+    rows_s, own_s, _, _ = red.local_responses()[int(red.point_rod[0])]
+    dense = red.stress_gravity[:, None] + B @ c
+    on = np.searchsorted(np.flatnonzero(red.point_rod == red.point_rod[0]), keep)
+    f_r = np.zeros((len(on) * 3, 3))
+    f_r[(3 * on[:, None] + np.arange(3)).ravel()] = loads.reshape(3, -1).T
+    dense[rows_s] += own_s.astype(float) @ f_r
+    bound = qs.FAR_FIELD_DROP * (np.abs(c) * peak[:, None]).sum(axis=0)  # (U,)
+    err = np.abs(stress - dense)
+    assert np.all(err <= bound[None, :] + 1e-5 * np.abs(dense).max()), (err.max(axis=0), bound)
+    # and without the drop the recovery is the dense superposition, to float32 rounding
+    monkeypatch.setattr(qs, "FAR_FIELD_DROP", 0.0)
+    red._far_rows.clear()
+    exact, _ = qs.reduced_fields_of(red, keep, red.point_rod[keep], loads)
+    np.testing.assert_allclose(exact, dense, rtol=0, atol=1e-5 * np.abs(dense).max())
+
+
 def test_episodes_sharing_the_sensors_contact_operator_repeat_a_cold_episode_exactly(tiny_mesh, body):
     """The reduced tier's contact operator is the sensor's, kept with the reduced model and shared by
     its episodes (ReducedModel.contact_operator): an episode that finds its blocks, inverses and

@@ -1,0 +1,44 @@
+"""Compiled accumulations of the reduced tier's field recovery (:func:`fem.quasistatic.reduced_fields_of`).
+
+The recovery writes (n, U) float32 fields (n = 6 T stress or 3 P displacement rows, U distinct
+loads of an episode) as sums of precomputed responses. Two of its sums are poor fits for numpy:
+
+- the far field, ``out += A[:, used] @ c[used]`` with A (n, K) the far-field basis in CSR, its
+  small entries dropped (:data:`fem.quasistatic.FAR_FIELD_DROP`): scipy's sparse-dense product
+  makes a new (n, U) array and reads every column, loaded or not;
+- a rod's own rows, ``out[rows] += values``: numpy's fancy-index add gathers, adds and scatters in
+  three passes with two temporaries.
+
+Both are plain loops here, each output row written by one thread in a fixed order, so the result
+does not depend on the thread count.
+"""
+
+from __future__ import annotations
+
+from numba import njit, prange
+
+
+@njit(parallel=True, cache=True)
+def add_sparse_product(indptr, indices, data, c, used, out):
+    """out += A[:, used] @ c[used] in place.
+
+    A (n, K) in CSR (indptr (n + 1,), indices, data); c (K, U); used (K,) bool: the rows of c that
+    may be nonzero (the others are skipped unread); out (n, U)."""
+    n, U = out.shape
+    for i in prange(n):
+        for p in range(indptr[i], indptr[i + 1]):
+            k = indices[p]
+            if used[k]:
+                v = data[p]
+                for u in range(U):
+                    out[i, u] += v * c[k, u]
+
+
+@njit(parallel=True, cache=True)
+def add_rows(out, rows, values):
+    """out[rows] += values in place: out (n, U), rows (k,) distinct row indices, values (k, U)."""
+    U = out.shape[1]
+    for j in prange(rows.shape[0]):
+        r = rows[j]
+        for u in range(U):
+            out[r, u] += values[j, u]

@@ -1,0 +1,67 @@
+"""fem.field_kernels: the compiled sums of the reduced tier's field recovery against their numpy
+forms, rows and columns they must not read, and independence of the thread count."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from fem import field_kernels
+
+
+def _problem(seed=0, n=400, K=12, U=5, density=0.1):
+    rng = np.random.default_rng(seed)
+    A = sp.random(n, K, density=density, format="csr", random_state=rng, dtype=np.float32)
+    c = rng.standard_normal((K, U)).astype(np.float32)
+    out = rng.standard_normal((n, U)).astype(np.float32)
+    return A, c, out
+
+
+def test_the_sparse_product_adds_the_used_columns_only():
+    A, c, out = _problem()
+    used = np.zeros(len(c), dtype=bool)
+    used[[1, 4, 5, 9]] = True
+    expect = out.astype(float) + A.toarray()[:, used].astype(float) @ c[used].astype(float)
+    c[~used] = np.nan  # rows of c marked unused are never read
+    field_kernels.add_sparse_product(A.indptr, A.indices, A.data, c, used, out)
+    np.testing.assert_allclose(out, expect, rtol=1e-5, atol=1e-5)
+
+
+def test_the_row_add_is_numpys_fancy_index_add():
+    rng = np.random.default_rng(1)
+    out = rng.standard_normal((300, 7)).astype(np.float32)
+    rows = rng.choice(300, size=90, replace=False)
+    values = rng.standard_normal((90, 7)).astype(np.float32)
+    expect = out.copy()
+    expect[rows] += values
+    field_kernels.add_rows(out, rows, values)
+    np.testing.assert_array_equal(out, expect)
+
+
+def test_the_sums_do_not_depend_on_the_thread_count():
+    A, c, out = _problem(seed=2, n=5000, K=30, U=16, density=0.3)
+    used = np.ones(len(c), dtype=bool)
+    results = []
+    threads = numba.get_num_threads()
+    try:
+        for t in (1, threads):
+            numba.set_num_threads(t)
+            o = out.copy()
+            field_kernels.add_sparse_product(A.indptr, A.indices, A.data, c, used, o)
+            results.append(o)
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(results[0], results[1])
+
+
+@pytest.mark.parametrize("n_used", [0, 12])
+def test_empty_and_full_inputs(n_used):
+    A, c, out = _problem(seed=3)
+    used = np.arange(len(c)) < n_used
+    expect = out.astype(float) + A.toarray()[:, used].astype(float) @ c[used].astype(float)
+    field_kernels.add_sparse_product(A.indptr, A.indices, A.data, c, used, out)
+    np.testing.assert_allclose(out, expect, rtol=1e-5, atol=1e-5)
+    field_kernels.add_rows(out, np.zeros(0, dtype=np.int64), np.zeros((0, out.shape[1]), np.float32))
+    np.testing.assert_allclose(out, expect, rtol=1e-5, atol=1e-5)
