@@ -251,7 +251,9 @@ def test_image_angles_turn_into_sensor_directions_through_the_optics():
 
 def test_direction_study_turns_with_the_push(tmp_path, cache):
     """Invariance on the symmetric 2 x 2 sensor pushed at its centre: pushing the opposite way turns
-    the DLLM's direction by 180 deg (within 30), and the study writes its table and plot."""
+    the DLLM's direction over every firing taxel by 180 deg (within 30); the sphere, sliding from the
+    centre, pushes the two rods it moves towards (the other two in the opposite push); the study
+    writes its table (with the approach bearing, applied + 180) and plot."""
     from pathlib import Path
 
     from dllm.direction import direction_study, wrap_deg
@@ -260,10 +262,43 @@ def test_direction_study_turns_with_the_push(tmp_path, cache):
     scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "mavig_tiny.toml",
                        {"camera.width_px": 96, "camera.height_px": 96, "fidelity.render.transport_spp": 8})
     rows = direction_study(scene, [90.0, 270.0], tmp_path, cache, progress=False, log=lambda m: None)
-    assert all(r.events > 0 and r.samples > 0 for r in rows)
-    assert abs(wrap_deg(rows[1].measured_deg - rows[0].measured_deg)) == pytest.approx(180.0, abs=30.0)
+    assert all(r.events > 0 and r.push_events > 0 and r.samples > 0 for r in rows)
+    assert [r.approach_deg for r in rows] == [270.0, 90.0]
+    assert len(rows[0].taxels) == 2 and sorted(rows[0].taxels + rows[1].taxels) == [0, 1, 2, 3]
+    assert abs(wrap_deg(rows[1].measured_all_deg - rows[0].measured_all_deg)) == pytest.approx(180.0, abs=30.0)
     assert (tmp_path / "direction.png").stat().st_size > 10_000
-    assert len((tmp_path / "direction.csv").read_text().splitlines()) == 3
+    lines = (tmp_path / "direction.csv").read_text().splitlines()
+    assert len(lines) == 3 and lines[0].startswith("applied_deg,approach_deg,measured_deg,error_deg")
+
+
+def test_the_direction_estimate_reads_the_pushed_taxels_in_the_push_frames():
+    """dllm.direction's pieces on made-up features: frames overlap the push by their exposure
+    windows; a rod is pushed at half the largest rod's force; the H l-weighted circular mean of
+    the chosen samples (across 0/360), and the approach bearing is the motion's opposite."""
+    from dllm.direction import approach_deg, episode_direction, push_frames, pushed_taxels, sensor_angle_deg, wrap_deg
+
+    windows = np.array([[0.0, 0.033], [0.033, 0.066], [0.066, 0.099], [0.099, 0.132]])
+    assert push_frames(windows, 0.05, 0.1).tolist() == [False, True, True, True]
+    assert push_frames(windows, 0.033, 0.066).tolist() == [False, True, False, False]  # touching ends do not count
+    force = np.zeros((4, 3, 3))
+    force[1:, 0, 2] = [1.0, 2.0, 2.0]  # rod 0 pushed
+    force[1:, 1, 0] = [0.0, 0.9, 1.1]  # rod 1: 0.55 of it -> pushed
+    force[0, 2, 2] = 5.0  # rod 2: only outside the push frames
+    assert pushed_taxels(force, [False, True, True, True], rod_of_taxel=np.array([2, 0, 1])).tolist() == [1, 2]
+    assert pushed_taxels(force, [False, True, True, True], rod_of_taxel=np.array([2, 0, 1]), share=0.6).tolist() == [1]
+    assert pushed_taxels(np.zeros((2, 3, 3)), [True, True], np.arange(3)).size == 0
+    # sensor directions 350 and 10 deg on taxel 0 (equal weights) average to 0; taxel 1 is left out
+    omega = lambda theta: (180.0 - theta) % 360.0  # noqa: E731 (the inverse of sensor_angle_deg)
+    features = np.zeros((3, 2, 3))
+    features[0, 0] = [1.0, 2.0, omega(350.0)]
+    features[1, 0] = [2.0, 1.0, omega(10.0)]
+    features[1, 1] = [9.0, 9.0, omega(90.0)]
+    features[2, 0] = [9.0, 9.0, omega(180.0)]  # not an event frame
+    mean, theta, w = episode_direction(features, np.array([True, True, False]), taxels=[0])
+    assert wrap_deg(mean) == pytest.approx(0.0, abs=1e-9) and sorted(np.round(theta, 9) % 360) == [10.0, 350.0]
+    assert np.all(sensor_angle_deg(omega(np.array([0.0, 90.0, 271.0]))) == [0.0, 90.0, 271.0])
+    assert approach_deg([0.0, 90.0, 270.0]).tolist() == [180.0, 270.0, 90.0]
+    assert np.isnan(episode_direction(features, np.zeros(3, bool))[0])
 
 
 def test_ambient_study_false_triggers_follow_the_lights_on_jump(tmp_path, cache):
