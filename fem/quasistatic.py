@@ -117,7 +117,7 @@ class ReducedModel:
     C: np.ndarray  # (3 M, 3 M) patch compliance
     # the patches' responses away from their own rod, per rod a few columns (far_field_basis):
     # response (6 T, 3 M) = stress_basis.T @ stress_coeff off each rod's own rows; the bases are stored
-    # transposed, a rod's rows contiguous, so that the loaded rods' are read as one block
+    # transposed, a rod's rows contiguous (the field recovery reads them sparse: far_field_rows)
     stress_basis: np.ndarray  # (K, 6 T) float32, the rods' bases one after the other
     stress_coeff: np.ndarray  # (K, 3 M), each basis row's weights on its rod's patch columns
     displacement_basis: np.ndarray  # (K_d, 3 P) float32, vertex-major (3 p + c)
