@@ -22,14 +22,14 @@ So an image is split in two:
   random numbers (:func:`split_transport`).
 
 Measured against 2 x 64 spp path renders on the deformed sheet (mono; per-rod disk sums, Frobenius
-over the lit frames x rods; 2026-11-26, prototype of this split, with the direct part mapped
-through the rest vertices):
+over every lit frame x rod; this module with a 16 spp split and 3 x 3 primary rays, 2026-11-26,
+``/tmp/p5/mod_all.py`` of that session):
 
 | scene | this split | rest-shape transport | worst frame: split / rest |
 |---|---|---|---|
-| default demo | 0.96 % | 3.1 % | 6.2 % / 49 % |
-| screw | 0.71 % | 1.33 % | 1.6 % / 6.8 % |
-| direction test, 0 deg | 0.67 % | 2.87 % | 2.5 % / 39 % |
+| default demo | 0.86 % | 3.1 % | 7.2 % / 51 % |
+| screw | 0.67 % | 1.29 % | 1.1 % / 6.3 % |
+| direction test, 0 deg (1.5 mm mesh) | 1.05 % | 2.77 % | 3.2 % / 39 % |
 
 What is left is the bounces on the rest shape: 7-15 % off, on 28-48 % of the light.
 
