@@ -22,8 +22,8 @@ So an image is split in two:
   random numbers (:func:`split_transport`).
 
 Measured against 2 x 64 spp path renders on the deformed sheet (mono; per-rod disk sums, Frobenius
-over every lit frame x rod; this module with a 16 spp split and 3 x 3 primary rays, 2026-11-26,
-``/tmp/p5/mod_all.py`` of that session):
+over every lit frame x rod; a 16 spp split and 3 x 3 primary rays, 2026-11-26,
+``benchmarks/bench_reprojection.py``):
 
 | scene | this split | rest-shape transport | worst frame: split / rest |
 |---|---|---|---|
@@ -33,8 +33,8 @@ over every lit frame x rod; this module with a 16 spp split and 3 x 3 primary ra
 
 What is left is the bounces on the rest shape: 7-15 % off, on 28-48 % of the light.
 
-Cost: the primary rays are cast by Mitsuba, with the sheet's BVH rebuilt per frame (about 0.3 s at
-3 x 3 per pixel on 2 cores). That is a third of a 16 spp path render, and without its Monte Carlo
+Cost: the primary rays are cast by Mitsuba, with the sheet's BVH rebuilt per frame (0.5-0.9 s at
+3 x 3 per pixel on 2 cores). That is about a 16 spp path render's cost, and without its Monte Carlo
 noise in the direct light. The fast tier of issue 16 (200 frames/s) needs these first hits without
 ray tracing: the interfaces are flat and parallel, so each sheet vertex projects to the image
 analytically (Snell at two planes), and each rod, seen from below, is a single-layer cup that can
