@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dllm.direction import direction_study, wrap_deg
+from dllm.direction import direction_study, summary, wrap_deg
 from mlsim.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,7 +62,8 @@ def summarise(rows) -> dict:
     err_all = np.array([r.error_all_deg for r in rows])
     on = np.isin([r.applied_deg % 90.0 for r in rows], [a % 90.0 for a in MIRROR_LINES_DEG])
     frames_term = [_circular_spread_deg(wrap_deg(np.asarray(r.sample_deg) - r.approach_deg)) / math.sqrt(max(len(r.sample_deg), 1)) for r in rows]
-    return {"mean_abs_error_deg": float(np.nanmean(np.abs(err))), "mean_abs_error_all_taxels_deg": float(np.nanmean(np.abs(err_all))),
+    figures = summary(rows)
+    return {"mean_abs_error_deg": figures["mean_abs_error_deg"], "mean_abs_error_all_taxels_deg": figures["mean_abs_error_all_taxels_deg"],
             "mean_error_deg": float(np.nanmean(err)), "mirror_lines_mean_abs_deg": float(np.nanmean(np.abs(err[on]))) if on.any() else None,
             "off_mirror_lines_mean_abs_deg": float(np.nanmean(np.abs(err[~on]))) if (~on).any() else None,
             "few_frames_standard_error_deg": float(np.mean(frames_term)), "errors_deg": err.tolist(), "errors_all_taxels_deg": err_all.tolist()}

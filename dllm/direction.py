@@ -47,7 +47,10 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["DirectionRow", "sensor_angle_deg", "approach_deg", "episode_direction", "push_frames", "pushed_taxels", "direction_study",
-           "wrap_deg", "PUSHED_FORCE_SHARE"]
+           "summary", "wrap_deg", "PUSHED_FORCE_SHARE", "SIGN_CONVENTION"]
+
+#: what the study compares the DLLM's direction with (the module docstring gives the physics)
+SIGN_CONVENTION = "the DLLM reports the bearing the probe comes from: approach_deg = applied_deg (the slide's direction) + 180"
 
 #: a rod counts as pushed when its contact force during the push frames reaches this share of the
 #: largest rod's (the rods the probe pushes, not a neighbour its edge grazes)
@@ -153,6 +156,21 @@ def direction_study(scene, angles_deg, out_dir=None, cache=None, progress: bool 
     return rows
 
 
+def summary(rows: list[DirectionRow]) -> dict:
+    """The study's figures: the sign convention, the mean absolute errors of both estimates (None
+    where no direction gave events), the directions without events, and the rows."""
+    def mean_abs(errors):
+        ok = [abs(e) for e in errors if np.isfinite(e)]
+        return float(np.mean(ok)) if ok else None
+
+    return {"sign_convention": SIGN_CONVENTION,
+            "estimator": "H l-weighted circular mean over the pushed taxels in the push frames",
+            "mean_abs_error_deg": mean_abs([r.error_deg for r in rows]),
+            "mean_abs_error_all_taxels_deg": mean_abs([r.error_all_deg for r in rows]),
+            "episodes_without_events": [r.applied_deg for r in rows if not np.isfinite(r.error_deg)],
+            "rows": [r.__dict__ for r in rows]}
+
+
 def write(rows: list[DirectionRow], out_dir: Path) -> list[Path]:
     """``direction.csv``, ``direction.json`` and ``direction.png`` (box plot of the pushed taxels'
     per-frame directions against the approach bearing, with the episodes' means)."""
@@ -162,17 +180,9 @@ def write(rows: list[DirectionRow], out_dir: Path) -> list[Path]:
     lines = ["applied_deg,approach_deg,measured_deg,error_deg,measured_all_deg,error_all_deg,events,push_events,samples,taxels"] + [
         f"{r.applied_deg:g},{r.approach_deg:g},{r.measured_deg:.3f},{r.error_deg:.3f},{r.measured_all_deg:.3f},{r.error_all_deg:.3f},"
         f"{r.events},{r.push_events},{r.samples},{' '.join(map(str, r.taxels))}" for r in rows]
-    ok = [r for r in rows if np.isfinite(r.error_deg)]
-    ok_all = [r for r in rows if np.isfinite(r.error_all_deg)]
-    summary = {"sign_convention": "the DLLM reports the bearing the probe comes from: approach_deg = applied_deg + 180 "
-                                  "(applied_deg: the slide's direction; dllm.direction's docstring gives the physics)",
-               "estimator": "H l-weighted circular mean over the pushed taxels in the push frames",
-               "mean_abs_error_deg": float(np.mean([abs(r.error_deg) for r in ok])) if ok else None,
-               "mean_abs_error_all_taxels_deg": float(np.mean([abs(r.error_all_deg) for r in ok_all])) if ok_all else None,
-               "episodes_without_events": [r.applied_deg for r in rows if not np.isfinite(r.error_deg)],
-               "rows": [r.__dict__ for r in rows]}
+    figures = summary(rows)
     files = [atomic_bytes(out_dir / "direction.csv", ("\n".join(lines) + "\n").encode()),
-             atomic_bytes(out_dir / "direction.json", json.dumps(summary, indent=1, default=float).encode())]
+             atomic_bytes(out_dir / "direction.json", json.dumps(figures, indent=1, default=float).encode())]
     import matplotlib
 
     matplotlib.use("Agg")
@@ -189,7 +199,7 @@ def write(rows: list[DirectionRow], out_dir: Path) -> list[Path]:
     ax.plot([lo, hi], [lo, hi], "k:", label="measured = approach")
     ax.set_xlabel("approach bearing: where the probe comes from (deg) = slide direction + 180")
     ax.set_ylabel("DLLM direction (deg, sensor axes)")
-    mae = summary["mean_abs_error_deg"]
+    mae = figures["mean_abs_error_deg"]
     ax.set_title(f"direction test: mean absolute error {mae:.1f} deg" if mae is not None else "direction test: no events", fontsize=10)
     ax.legend(fontsize=8)
     fig.savefig(out_dir / "direction.png", dpi=110)

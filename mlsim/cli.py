@@ -220,20 +220,21 @@ def _study(args, kind: str):
 
 
 def cmd_direction(args) -> int:
-    from dllm.direction import direction_study
+    from dllm.direction import SIGN_CONVENTION, direction_study, summary
 
     scene, out_dir, log = _study(args, "direction")
     rows = direction_study(scene, args.angles, out_dir, _cache(args), progress=not args.quiet, log=log)
-    print("sign convention: the DLLM reports where the probe comes from, approach = applied (slide direction) + 180 deg")
+    print(f"sign convention: {SIGN_CONVENTION}")
     print(f"{'applied':>8} {'approach':>8} {'measured':>9} {'error':>7} {'all taxels':>10} {'events':>6} {'push':>5} {'samples':>7}  taxels")
     for r in rows:
         print(f"{r.applied_deg:>8g} {r.approach_deg:>8g} {r.measured_deg:>9.1f} {r.error_deg:>7.1f} {r.error_all_deg:>10.1f} {r.events:>6} "
               f"{r.push_events:>5} {r.samples:>7}  {' '.join(map(str, r.taxels))}")
-    ok = [abs(r.error_deg) for r in rows if r.error_deg == r.error_deg]
-    ok_all = [abs(r.error_all_deg) for r in rows if r.error_all_deg == r.error_all_deg]
-    print(f"mean absolute error {sum(ok) / len(ok):.1f} deg over {len(ok)} directions, pushed taxels in the push frames "
-          f"({sum(ok_all) / len(ok_all):.1f} deg over every firing taxel and event frame; SPEC 1.5: within a few degrees on the real sensor)"
-          if ok else "no direction gave events")
+    figures = summary(rows)
+    mae, mae_all = figures["mean_abs_error_deg"], figures["mean_abs_error_all_taxels_deg"]
+    n = len(rows) - len(figures["episodes_without_events"])
+    print(f"mean absolute error {mae:.1f} deg over {n} directions, pushed taxels in the push frames "
+          f"({mae_all:.1f} deg over every firing taxel and event frame; SPEC 1.5: within a few degrees on the real sensor)"
+          if mae is not None else "no direction gave events")
     print(f"wrote {out_dir / 'direction.csv'}, .json, .png")
     return EXIT_OK
 

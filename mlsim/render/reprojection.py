@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mlsim.render.transport import TransportMatrix, _barycentric, _drop_small, trace_transport
+from mlsim.render.transport import TransportMatrix, _barycentric, _drop_small, _hits, trace_transport
 
 __all__ = ["DIRECT_DEPTH", "PrimarySamples", "split_transport", "primary_samples", "direct_image"]
 
@@ -131,8 +131,7 @@ def primary_samples(sensor_scene, per_side: int = 3) -> PrimarySamples:
         dr.eval(on_sheet, si.prim_index, si.p, beta)
         m = np.array(on_sheet, dtype=bool) & (face < 0)
         if m.any():
-            face[m] = np.array(si.prim_index)[m]
-            hit_p[m] = np.stack([np.array(si.p.x)[m], np.array(si.p.y)[m], np.array(si.p.z)[m]], axis=1)
+            face[m], hit_p[m] = _hits(si, m)
             throughput[m] = np.array(beta)[m]
         active &= ~on_sheet
         # transmitted through the dielectric (the sample that picks transmission): the weight

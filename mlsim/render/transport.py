@@ -81,6 +81,13 @@ def _barycentric(points, tri):
     return w / w.sum(1, keepdims=True)
 
 
+def _hits(si, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(face (k,) int64, point (k, 3) float64 mm) of the evaluated surface interactions ``si`` where
+    ``mask`` (n,) bool holds."""
+    prim = np.array(si.prim_index)[mask].astype(np.int64)
+    return prim, np.stack([np.array(si.p.x)[mask], np.array(si.p.y)[mask], np.array(si.p.z)[mask]], axis=1).astype(np.float64)
+
+
 def trace_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e-4, pass_spp: int = 16,
                     progress: bool = False) -> TransportMatrix:
     """Trace the transport matrix of a :class:`mlsim.render.sensor_scene.SensorScene` (module docstring).
@@ -132,8 +139,7 @@ def trace_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e
             dr.eval(hit, si.prim_index, si.p, beta)
             m = np.array(hit, dtype=bool)
             if m.any():
-                prim = np.array(si.prim_index)[m].astype(np.int64)
-                p = np.stack([np.array(si.p.x)[m], np.array(si.p.y)[m], np.array(si.p.z)[m]], axis=1).astype(np.float64)
+                prim, p = _hits(si, m)
                 b = _barycentric(p, verts[faces[prim]]) * (np.array(beta)[m] / spp)[:, None]  # the mean over all spp
                 rows.append(np.repeat(pixel_np[m], 3))
                 cols.append(faces[prim].ravel())
