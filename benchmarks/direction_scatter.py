@@ -87,9 +87,12 @@ def main() -> None:
     (out / "direction_scatter.json").write_text(json.dumps(result, indent=1))
     print("| variant | pushed taxels: mean abs error (deg) | every taxel (deg) | on mirror lines | off them | few frames (std. error) |")
     print("|---|---|---|---|---|---|")
+    def cell(v):
+        return "-" if v is None else f"{v:.2f}"
+
     for name, r in result.items():
-        print(f"| {name} | {r['mean_abs_error_deg']:.2f} | {r['mean_abs_error_all_taxels_deg']:.2f} | {r['mirror_lines_mean_abs_deg']:.2f} | "
-              f"{r['off_mirror_lines_mean_abs_deg']:.2f} | {r['few_frames_standard_error_deg']:.2f} |")
+        print(f"| {name} | {cell(r['mean_abs_error_deg'])} | {cell(r['mean_abs_error_all_taxels_deg'])} | {cell(r['mirror_lines_mean_abs_deg'])} | "
+              f"{cell(r['off_mirror_lines_mean_abs_deg'])} | {cell(r['few_frames_standard_error_deg'])} |")
 
 
 if __name__ == "__main__":
