@@ -200,14 +200,16 @@ def _render_accuracy(args, scene, out_dir: Path) -> int:
 
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     rows, info = render_accuracy(scene, tuple(args.spp), tuple(args.transport_spp), args.reference_spp, args.frames,
-                                 not args.no_spectral, out_dir, _cache(args), progress=not args.quiet, log=log)
+                                 not args.no_spectral, out_dir, _cache(args), progress=not args.quiet, log=log,
+                                 direct_per_sides=tuple(args.direct_samples))
     print(f"reference: spectral path tracing at {info['reference_spp']} spp on frames {info['frames']} "
           f"({info['reference_ms_per_frame'] / 1e3:.1f} s per frame); its own noise: "
           + ", ".join(f"{e} {info['reference_noise_' + e]:.2e}" for e in RENDER_ERRORS))
     print(f"{'tier':>14} {'spp':>5} {'spectral':>8} {'ms/frame':>10} {'pre s':>7} " + " ".join(f"{e:>15}" for e in RENDER_ERRORS))
     for r in rows:
         errs = " ".join(f"{r.errors[e]:>14.3e}{'*' if r.errors[e + '_pareto'] else ' '}" for e in RENDER_ERRORS)
-        print(f"{r.tier:>14} {r.spp:>5} {str(r.spectral):>8} {r.per_frame_ms:>10.2f} {r.precompute_s:>7.1f} {errs}")
+        tier = f"{r.tier} {r.direct_per_side}x{r.direct_per_side}" if r.direct_per_side else r.tier
+        print(f"{tier:>14} {r.spp:>5} {str(r.spectral):>8} {r.per_frame_ms:>10.2f} {r.precompute_s:>7.1f} {errs}")
     print(f"(* = on the Pareto front)  wrote {out_dir / 'accuracy_render.csv'}, .json, .png")
     return EXIT_OK
 
@@ -325,6 +327,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spp", type=int, nargs="+", default=[1, 4, 16, 64], help="render: path tier samples per pixel")
     p.add_argument("--transport-spp", type=int, nargs="+", default=[16, 64], help="render: transport tier trace samples per pixel")
     p.add_argument("--reference-spp", type=int, default=256, help="render: the spectral reference's samples per pixel")
+    p.add_argument("--direct-samples", type=int, nargs="*", default=[1, 2, 3], metavar="N",
+                   help="render: the deformed tier's direct light at N x N samples per pixel (none: skip the tier)")
     p.add_argument("--frames", type=int, default=4, help="render: how many glowing frames (evenly spread) are compared")
     p.add_argument("--no-spectral", action="store_true", help="render: skip the path tier's spectral renders")
     p.add_argument("--out", help="output directory (default out/<scene name>_accuracy)")

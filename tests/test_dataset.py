@@ -28,7 +28,9 @@ N_SMALL = 32
 def write_spec(tmp: Path, samples_per_action: int = 2, people: int = 2, actions=ACTIONS, seed: int = 0, extra: str = "") -> Path:
     """A small spec on the interaction base scene, with a cheap transport trace (8 spp) for tests."""
     base = (ROOT / "scenes" / "interactions" / "screw.toml").read_text()
-    (tmp / "screw.toml").write_text(base.replace('tier = "transport"\n', 'tier = "transport"\ntransport_spp = 8\n', 1))
+    cheap = base.replace('tier = "deformed"\n', 'tier = "deformed"\ntransport_spp = 8\n', 1)
+    assert cheap != base, "the screw scene's render tier changed: update write_spec"
+    (tmp / "screw.toml").write_text(cheap)
     acts = ", ".join(f'"{a}"' for a in actions)
     path = tmp / "spec.toml"
     path.write_text(f'name = "test_ds"\nscene = "screw.toml"\nseed = {seed}\npeople = {people}\nsamples_per_action = {samples_per_action}\n'

@@ -1,5 +1,6 @@
 """`mlsim accuracy --stage render`: the path tier's error against the spectral reference falls as
-spp^-1/2 (Monte Carlo), and the files are written (an unknown --stage: tests/test_accuracy.py)."""
+spp^-1/2 (Monte Carlo), the deformed tier beats the rest-shape transport on a slide, and the files
+are written (an unknown --stage: tests/test_accuracy.py)."""
 
 from __future__ import annotations
 
@@ -35,6 +36,12 @@ def test_path_error_falls_at_the_monte_carlo_rate(tmp_path, cache):
     # (its error here is the rest-shape assumption on a slide; tests/test_render.py checks it at rest)
     assert transport.precompute_s > 0 and transport.per_frame_ms < min(r.per_frame_ms for r in rows if r.tier == "path")
     table = list(csv.DictReader(open(tmp_path / "accuracy_render.csv")))
-    assert len(table) == 2 * len(spps) + 2  # path x (shortcut, spectral), transport, transport+path
+    # the deformed tier at 1, 2 and 3 samples per pixel side: cheaper than path tracing, and it
+    # follows the slide's deformation that the rest-shape matrix misses
+    deformed = [r for r in rows if r.tier == "deformed"]
+    assert [r.direct_per_side for r in deformed] == [1, 2, 3]
+    assert max(r.per_frame_ms for r in deformed) < min(r.per_frame_ms for r in rows if r.tier == "path")
+    assert max(r.errors["rod_intensity"] for r in deformed) < transport.errors["rod_intensity"], [r.errors for r in rows]
+    assert len(table) == 2 * len(spps) + 2 + 3  # path x (shortcut, spectral), transport, transport+path, deformed x 3
     assert (tmp_path / "accuracy_render.png").stat().st_size > 10_000
     assert any(r["pareto_image"] == "True" for r in table)

@@ -9,39 +9,13 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from fem.geometry import RodArray, emitting_surface  # noqa: E402
-from mlsim.render import View  # noqa: E402
 from mlsim.render import reprojection as rp  # noqa: E402
-from mlsim.render.sensor_scene import SensorScene  # noqa: E402
 from mlsim.render.transport import trace_transport  # noqa: E402
-
-
-def _sheet(px=48):
-    g = RodArray(rows=2, cols=2, pitch_x_m=7.2e-3, pitch_y_m=7.2e-3, rod_radius_m=2.5e-3, rod_height_m=9e-3, base_thickness_m=2e-3,
-                 absorber_m=0.3e-3, ml_m=0.5e-3)
-    s = emitting_surface(g, 24, 1.5e-3)
-    V, F = np.asarray(s.vertices), np.asarray(s.faces)
-    view = View(width_px=px, height_px=px, lens_below_base_m=0.043, image_distance_m=0.0023068 * 2.4, pixel_pitch_m=5.8e-6 * 350 / px)
-    return g, V, F, SensorScene(V, F, view, base_half_size_m=7.2e-3, reflectance=0.5)
-
-
-def _blocks(img, n=2):
-    h = img.shape[-1] // n
-    return img[..., : n * h, : n * h].reshape(img.shape[:-2] + (n, h, n, h)).sum(axis=(-1, -3)).reshape(img.shape[:-2] + (n * n,))
+from render_helpers import bent as _bent, blocks as _blocks, small_sheet as _sheet  # noqa: E402
 
 
 def _quadrants(img):
     return _blocks(img, 2)
-
-
-def _bent(g, V, tip_m=1.5e-3):
-    """Rod 0 bent along +x as a beam clamped at the base and guided at the tip (its tip moved by tip_m)."""
-    base = g.base_thickness_m
-    on = (g.rod_of(V) == 0) & (V[:, 2] > base)
-    h = np.clip((V[on, 2] - base) / g.rod_height_m, 0.0, 1.0)
-    out = V.copy()
-    out[on, 0] += tip_m * (3 * h**2 - 2 * h**3)
-    return out
 
 
 def test_the_split_adds_up_to_the_full_transport_and_the_direct_part_is_direct():

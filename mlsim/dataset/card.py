@@ -42,8 +42,7 @@ def write_card(out_dir: str | Path, spec, base, summary: dict) -> Path:
         "",
         "## How it was made",
         f"- Spec hash `{summary['spec_hash'][:16]}`, seed {spec.seed}; base scene `{spec.scene}` (hash `{attrs['base_scene_hash'][:16]}`).",
-        f"- Tiers: solve `{fid.solve.tier}`, render `{fid.render.tier}` (transport traced at {fid.render.transport_spp} spp, "
-        f"path above: {fid.render.transport_max_displacement_mm}), mesh edge {fid.mesh.edge_length_mm:g} mm; "
+        f"- Tiers: solve `{fid.solve.tier}`, render `{fid.render.tier}` ({_render_tier_detail(fid.render)}), mesh edge {fid.mesh.edge_length_mm:g} mm; "
         f"DLLM alpha {base.dllm.alpha:g}, beta {base.dllm.beta:g}.",
         f"- The interactions: `mlsim.interactions` (clamp at {spec.interaction.grip_force_n:g} N, then one minimum-jerk stroke "
         "with tremor; the action definitions are in that module's docstring).",
@@ -63,11 +62,31 @@ def write_card(out_dir: str | Path, spec, base, summary: dict) -> Path:
         "## What it does not model",
         "- The person's force on the screw is not simulated: the screw's motion is prescribed (displacement control after the clamp), "
         "so `wrench` is the sensor's reaction, not the hand's wrench.",
-        "- The transport tier renders the rest shape of the sheet (see `max_sheet_displacement_mm` per episode); the emission, "
-        "camera and detector models are those of mlsim, with the constants documented in their modules.",
+        f"- {_render_tier_limit(fid.render.tier)} The emission, camera and detector models are those of mlsim, with the constants "
+        "documented in their modules.",
         "- People differ only by the parameters in `people` (`dataset.zarr` attributes); real people differ in more ways.",
         "",
     ]
     path = out / "README.md"
     atomic_bytes(path, "\n".join(lines).encode())
     return path
+
+
+def _render_tier_detail(render) -> str:
+    """What the render tier's knobs were, in words."""
+    if render.tier == "deformed":
+        return (f"direct light rasterised on the deformed sheet at {render.direct_samples_per_side}^2 samples per pixel, bounces traced "
+                f"at {render.transport_spp} spp on the rest shape")
+    if render.tier == "transport":
+        return f"transport traced at {render.transport_spp} spp, path above: {render.transport_max_displacement_mm}"
+    return f"path traced at {render.spp} spp"
+
+
+def _render_tier_limit(tier: str) -> str:
+    """What the render tier leaves out, in words."""
+    if tier == "deformed":
+        return ("The deformed render tier takes the light's bounces inside the rods from the rest shape of the sheet (the direct "
+                "light follows the deformation; see `max_sheet_displacement_mm` per episode).")
+    if tier == "transport":
+        return "The transport tier renders the rest shape of the sheet (see `max_sheet_displacement_mm` per episode)."
+    return "The path tier renders every frame on the deformed sheet (Monte Carlo noise at its spp)."

@@ -8,8 +8,10 @@ every phase), are rendered by every configuration and compared with a reference:
 - ``path`` at each ``spps`` rendered spectrally (``llvm_ad_spectral``, :mod:`mlsim.render.spectral`)
   when ``spectral`` is on: what the shortcut saves;
 - ``transport`` traced at each ``transport_spps`` (rest shape), spectral shortcut;
-- ``transport+path``: the transport tier as shipped, which path-traces (at ``fidelity.render.spp``)
-  the frames in which the sheet moved more than ``fidelity.render.transport_max_displacement_mm``.
+- ``transport+path``: the transport tier with ``fidelity.render.transport_max_displacement_mm``,
+  which path-traces (at ``fidelity.render.spp``) the frames in which the sheet moved more;
+- ``deformed``: the direct light rasterised on the deformed sheet at each of ``direct_per_sides``
+  (samples per pixel side), plus the bounces' matrix traced at each ``transport_spps``.
 
 The reference is the spectral path tracer at ``reference_spp`` on the deformed sheet: the most
 physical render the code has. Errors, relative Frobenius norms over frames x rods x channels (R, G,
@@ -21,7 +23,8 @@ B) and over frames x pixels x channels (:func:`mlsim.accuracy.relative_error`):
 The reference's own Monte Carlo noise is the floor under every error: it is estimated from a second
 reference render with another seed (the relative norm of the two renders' difference over
 sqrt(2)) and reported as ``reference_noise_*``. Run time is the median time per frame (for the
-transport tier the sparse product; its one-off trace is ``precompute_s``). The Pareto front (no
+transport tier the sparse product, for the deformed tier the rasteriser and the product, over all
+the frames as one batch; their one-off trace is ``precompute_s``). The Pareto front (no
 other configuration both faster and more accurate) is marked per error.
 """
 
@@ -49,6 +52,8 @@ class RenderRow:
     per_frame_ms: float = float("nan")
     precompute_s: float = 0.0
     errors: dict = field(default_factory=dict)
+    #: the deformed tier's samples per pixel side of its direct light (0: another tier)
+    direct_per_side: int = 0
 
 
 def _rod_sums(images, masks) -> np.ndarray:
@@ -65,7 +70,8 @@ def _errors(images, reference, masks) -> dict:
 
 
 def render_accuracy(scene, spps=(1, 4, 16, 64), transport_spps=(16, 64), reference_spp: int = 256, frames: int = 4,
-                    spectral: bool = True, out_dir=None, cache=None, progress: bool = True, log=print) -> tuple[list[RenderRow], dict]:
+                    spectral: bool = True, out_dir=None, cache=None, progress: bool = True, log=print,
+                    direct_per_sides=(1, 2, 3)) -> tuple[list[RenderRow], dict]:
     """Run every configuration and the reference on ``frames`` of the scene's glowing frames; return
     (rows, reference info) and write CSV, JSON and PNG to ``out_dir`` when given."""
     from mlsim import pipeline, render
@@ -151,6 +157,27 @@ def render_accuracy(scene, spps=(1, 4, 16, 64), transport_spps=(16, 64), referen
                                           vertices_m=vertices, path_above_m=limit_mm * 1e-3).radiance
             per_frame = (time.perf_counter() - t0) / len(chosen)
             rows.append(RenderRow("transport+path", int(spp), False, per_frame * 1e3, trace_s, _errors(hybrid[..., None] * k, reference, masks)))
+        if direct_per_sides:
+            from mlsim.render.direct_raster import direct_raster
+            from mlsim.render.reprojection import DIRECT_DEPTH
+
+            log(f"[accuracy] deformed: bounces traced at {spp} spp, direct light rasterised at {', '.join(f'{n}x{n}' for n in direct_per_sides)}")
+            t0 = time.perf_counter()
+            bounces = render.trace_transport(sheet, spp=spp, seed=50_000 + spp, drop=scene.fidelity.render.transport_drop, progress=progress,
+                                             first_depth=DIRECT_DEPTH)
+            bounce_s = time.perf_counter() - t0
+            for n in direct_per_sides:
+                t0 = time.perf_counter()
+                raster = direct_raster(sheet, n)
+                build_s = time.perf_counter() - t0
+                render.render_frames(sheet, radiance, "deformed", transport=bounces, raster=raster, vertices_m=vertices)  # compiled, warm
+                seconds = []
+                for _ in range(5):
+                    t0 = time.perf_counter()
+                    mono = render.render_frames(sheet, radiance, "deformed", transport=bounces, raster=raster, vertices_m=vertices).radiance
+                    seconds.append((time.perf_counter() - t0) / len(chosen))
+                rows.append(RenderRow("deformed", int(spp), False, float(np.median(seconds)) * 1e3, bounce_s + build_s,
+                                      _errors(mono[..., None] * k, reference, masks), direct_per_side=int(n)))
     from mlsim.accuracy import pareto_front
 
     for e in RENDER_ERRORS:
@@ -167,14 +194,15 @@ def write(rows: list[RenderRow], info: dict, out_dir: Path, scene) -> list[Path]
     from mlsim.io import atomic_bytes
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    header = ["tier", "spp", "spectral", "per_frame_ms", "precompute_s"] + [k for e in RENDER_ERRORS for k in (f"error_{e}", f"pareto_{e}")]
+    header = (["tier", "spp", "spectral", "direct_per_side", "per_frame_ms", "precompute_s"]
+              + [k for e in RENDER_ERRORS for k in (f"error_{e}", f"pareto_{e}")])
     import io
 
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(header)
     for r in rows:
-        w.writerow([r.tier, r.spp, r.spectral, f"{r.per_frame_ms:.6g}", f"{r.precompute_s:.6g}",
+        w.writerow([r.tier, r.spp, r.spectral, r.direct_per_side, f"{r.per_frame_ms:.6g}", f"{r.precompute_s:.6g}",
                     *[v for e in RENDER_ERRORS for v in (f"{r.errors[e]:.6g}", r.errors[f"{e}_pareto"])]])
     paths = [atomic_bytes(out_dir / "accuracy_render.csv", buf.getvalue().encode()),
              atomic_bytes(out_dir / "accuracy_render.json",
@@ -193,7 +221,8 @@ def _plot(rows: list[RenderRow], info: dict, path: Path) -> None:
 
     style = {("path", False): ("o", "tab:blue", "path, shortcut"), ("path", True): ("^", "tab:green", "path, spectral"),
              ("transport", False): ("s", "tab:orange", "transport, rest shape (per-frame cost)"),
-             ("transport+path", False): ("D", "tab:red", "transport + path above the displacement limit")}
+             ("transport+path", False): ("D", "tab:red", "transport + path above the displacement limit"),
+             ("deformed", False): ("v", "tab:purple", "deformed (label: bounce spp / direct samples per side)")}
     fig, axes = plt.subplots(1, len(RENDER_ERRORS), figsize=(5.2 * len(RENDER_ERRORS), 4.2), constrained_layout=True)
     for ax, e in zip(axes, RENDER_ERRORS):
         for key, (marker, colour, label) in style.items():
@@ -202,7 +231,8 @@ def _plot(rows: list[RenderRow], info: dict, path: Path) -> None:
                 continue
             ax.loglog([r.per_frame_ms for r in sel], [r.errors[e] for r in sel], marker + "-", color=colour, label=label, mfc="none")
             for r in sel:
-                ax.annotate(f"{r.spp}", (r.per_frame_ms, r.errors[e]), fontsize=7, xytext=(4, 2), textcoords="offset points")
+                label = f"{r.spp}/{r.direct_per_side}" if r.direct_per_side else f"{r.spp}"
+                ax.annotate(label, (r.per_frame_ms, r.errors[e]), fontsize=7, xytext=(4, 2), textcoords="offset points")
                 if r.errors[f"{e}_pareto"]:
                     ax.loglog(r.per_frame_ms, r.errors[e], marker, color=colour)
         ax.axhline(info[f"reference_noise_{e}"], color="grey", ls=":", label="reference noise")

@@ -73,9 +73,11 @@ def auto_exposure_s(params, green_electrons_per_s, target_dn8: float, percentile
     return exposure, float(gain_db), noiseless_dn8(replace(params, gain_db=gain_db), rate * exposure)
 
 
-def calibration_frame(scene, patches, sensor_scene, transport=None) -> CalibrationFrame:
+def calibration_frame(scene, patches, sensor_scene, transport=None, raster=None) -> CalibrationFrame:
     """Render and expose the calibration frame of a scene (module docstring); ``transport`` is the
-    sheet's transport matrix for the transport tier (else the frame is path-traced)."""
+    sheet's transport matrix for the transport tier, with ``raster`` (a
+    :class:`mlsim.render.direct_raster.DirectRaster`) the bounces' matrix of the deformed tier
+    (else the frame is path-traced)."""
     from mlsim import render
     from mlsim.camera import Camera
     from mlsim.render import ambient
@@ -86,9 +88,9 @@ def calibration_frame(scene, patches, sensor_scene, transport=None) -> Calibrati
     leak = ambient.leak_through_layers(scene, patches, sensor_scene, lamp=c.lamp, power_w=c.power_w, lamp_m=lamp_m, absorber="none",
                                        occlusion=scene.ambient.occlusion)
     spec = scene.fidelity.render
-    tier = "transport" if transport is not None else "path"
+    tier = "path" if transport is None else ("deformed" if raster is not None else "transport")
     radiance = render.render_still(sensor_scene, render.radiance_of(leak.photons_per_s, patches.area_m2), tier,
-                                   spp=spec.spp, seed=scene.seed ^ 0xCA11B, transport=transport)
+                                   spp=spec.spp, seed=scene.seed ^ 0xCA11B, transport=transport, raster=raster)
     k = channel_factors_of(scene, leak.sd).astype(np.float32)
     params = camera_params(scene)
     per_s = params.electrons_per_radiance_m2_sr_s / params.exposure_s

@@ -1,5 +1,6 @@
-"""Deformation-aware transport, first piece (issue 16, CPU): the direct light traced on the deformed
-sheet's primary rays, the bounces from the rest shape's transport matrix.
+"""The deformed tier's split of the light (issue 16, CPU): the direct light on the deformed sheet,
+the bounces from the rest shape's transport matrix; and the direct light from Mitsuba's own
+primary rays, the reference of the rasteriser (:mod:`mlsim.render.direct_raster`).
 
 The rest-shape transport (:mod:`mlsim.render.transport`) is off by tens of % per rod once a rod's
 tip has moved a millimetre or two. Most of that error is in the *direct* light, the light the
@@ -18,12 +19,11 @@ So an image is split in two:
   interfaces do not move, so the rays inside the core are the same every frame; only their first
   hits change.
 - **Bounces on the rest shape, B_rest e.** B_rest is the transport matrix of the paths with at
-  least one bounce on the sheet: the full matrix minus its direct part, traced with the same
-  random numbers (:func:`split_transport`).
+  least one bounce on the sheet: the hits after the first, recorded along the same paths as the
+  full matrix's (:func:`split_transport`, ``trace_transport(..., first_depth=3)``).
 
 Measured against 2 x 64 spp path renders on the deformed sheet (mono; per-rod disk sums, Frobenius
-over every lit frame x rod; a 16 spp split and 3 x 3 primary rays, 2026-11-26,
-``benchmarks/bench_reprojection.py``):
+over every lit frame x rod; the split traced at 16 spp and 3 x 3 primary rays, 2026-11-26):
 
 | scene | this split | rest-shape transport | worst frame: split / rest |
 |---|---|---|---|
@@ -31,14 +31,14 @@ over every lit frame x rod; a 16 spp split and 3 x 3 primary rays, 2026-11-26,
 | screw | 0.67 % | 1.29 % | 1.1 % / 6.3 % |
 | direction test, 0 deg (1.5 mm mesh) | 1.05 % | 2.77 % | 3.2 % / 39 % |
 
-What is left is the bounces on the rest shape: 7-15 % off, on 28-48 % of the light.
+What is left is the bounces on the rest shape: 7-15 % off, on 28-48 % of the light. The deformed
+tier's own figures (its rasterised direct light, the bounces at ``transport_spp``) are
+``benchmarks/bench_deformed.py``'s.
 
-Cost: the primary rays are cast by Mitsuba, with the sheet's BVH rebuilt per frame (0.5-0.9 s at
-3 x 3 per pixel on 2 cores). That is about a 16 spp path render's cost, and without its Monte Carlo
-noise in the direct light. The fast tier of issue 16 (200 frames/s) needs these first hits without
-ray tracing: the interfaces are flat and parallel, so each sheet vertex projects to the image
-analytically (Snell at two planes), and each rod, seen from below, is a single-layer cup that can
-be rasterised. This module is the reference that such a rasteriser must match.
+:func:`primary_samples` casts the primary rays with Mitsuba (the sheet's BVH rebuilt per frame:
+0.5-0.9 s per frame at 3 x 3 per pixel on 2 cores); the deformed tier finds the same first hits by
+projection and rasterisation in a few milliseconds (:mod:`mlsim.render.direct_raster`, tested
+against this module).
 """
 
 from __future__ import annotations
@@ -47,9 +47,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mlsim.render.transport import TransportMatrix, _barycentric, _drop_small, _hits, trace_transport
+from mlsim.render.transport import TransportMatrix, _barycentric, _hits, trace_transport
 
-__all__ = ["DIRECT_DEPTH", "PrimarySamples", "split_transport", "primary_samples", "direct_image"]
+__all__ = ["DIRECT_DEPTH", "PrimarySamples", "split_transport", "transmit_interfaces", "primary_samples", "direct_image"]
 
 #: intersections on a direct path: the acrylic's bottom, the core's bottom, the sheet
 DIRECT_DEPTH = 3
@@ -58,25 +58,17 @@ DIRECT_DEPTH = 3
 def split_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e-4, progress: bool = False
                     ) -> tuple[TransportMatrix, TransportMatrix]:
     """(direct, bounces): the transport matrix of the sheet as it is, split into its direct paths
-    (camera -> acrylic -> core -> sheet) and the rest. Both are traced with the same seed, so the
-    direct paths of the full trace are those of the direct trace, and their difference holds only
-    paths with a bounce. Entries below ``drop`` x the largest are removed from each part."""
+    (camera -> acrylic -> core -> sheet) and the rest. Both are traced with the same seed, so they
+    follow the same paths: the direct trace stops at the sheet, the other records only the hits
+    after it (``first_depth``), and the two add up to the full matrix. Entries below ``drop`` x the
+    largest are removed from each part."""
     depth = sensor_scene.max_depth
     try:
         sensor_scene.max_depth = DIRECT_DEPTH
-        direct = trace_transport(sensor_scene, spp=spp, seed=seed, drop=0.0, progress=progress)
+        direct = trace_transport(sensor_scene, spp=spp, seed=seed, drop=drop, progress=progress)
     finally:
         sensor_scene.max_depth = depth
-    full = trace_transport(sensor_scene, spp=spp, seed=seed, drop=0.0, progress=progress)
-    bounces = (full.matrix.astype(np.float64) - direct.matrix.astype(np.float64)).tocsr()
-    bounces.data[np.abs(bounces.data) < 1e-30] = 0.0  # the direct paths cancel exactly
-    bounces.eliminate_zeros()
-    d = direct.matrix.astype(np.float64).tocsr()
-    parts = []
-    for m, seconds in ((d, direct.seconds), (bounces, full.seconds)):
-        dropped = _drop_small(m, drop)
-        parts.append(TransportMatrix(m.astype(np.float32), full.height_px, full.width_px, int(spp), dropped, seconds))
-    return parts[0], parts[1]
+    return direct, trace_transport(sensor_scene, spp=spp, seed=seed, drop=drop, progress=progress, first_depth=DIRECT_DEPTH)
 
 
 @dataclass
@@ -94,6 +86,37 @@ class PrimarySamples:
     n_pixels: int
     height_px: int
     width_px: int
+
+
+def transmit_interfaces(sensor_scene, film_positions):
+    """Camera rays through film positions (n, 2) in [0, 1]^2, transmitted through the acrylic's and
+    the core's bottom faces: (Mitsuba rays inside the core, throughput (n,) numpy, Mitsuba mask of
+    the rays that entered it). The throughput is the camera's importance times both faces' Fresnel
+    transmittance and radiance scaling; zero where a ray misses the acrylic."""
+    from mlsim.render.sensor_scene import use_variant
+
+    mi = use_variant(sensor_scene.variant)
+    import drjit as dr
+
+    p = np.asarray(film_positions, dtype=np.float64)
+    camera = sensor_scene.scene.sensors()[0]
+    ray, weight = camera.sample_ray(0.0, 0.0, mi.Point2f(mi.Float(p[:, 0]), mi.Float(p[:, 1])), mi.Point2f(0.5, 0.5))
+    beta = mi.Float(weight[0])
+    active = mi.Bool(True)
+    ctx = mi.BSDFContext()
+    for _ in range(DIRECT_DEPTH - 1):
+        si = sensor_scene.scene.ray_intersect(ray, active)
+        active &= si.is_valid() & (si.shape.emitter() == None)  # noqa: E711 (Dr.Jit mask)
+        # transmitted through the dielectric (the sample that picks transmission): the weight
+        # Mitsuba returns is its estimator's (value / probability), so the probability, the Fresnel
+        # transmittance, is multiplied back in
+        bs, value = si.bsdf(ray).sample(ctx, si, mi.Float(1.0 - 1e-6), mi.Point2f(0.5, 0.5), active)
+        beta = beta * mi.Float(value[0]) * bs.pdf
+        active &= bs.pdf > 0
+        ray = si.spawn_ray(si.to_world(bs.wo))
+    beta = dr.select(active, beta, 0.0)
+    dr.eval(ray, beta, active)
+    return ray, np.array(beta, dtype=np.float64), active
 
 
 def primary_samples(sensor_scene, per_side: int = 3) -> PrimarySamples:
@@ -115,38 +138,18 @@ def primary_samples(sensor_scene, per_side: int = 3) -> PrimarySamples:
     pixel = idx // k
     s = idx % k
     ox, oy = ((s % per_side) + 0.5) / per_side, ((s // per_side) + 0.5) / per_side
-    pos = mi.Point2f(mi.Float(((pixel % W) + ox) / W), mi.Float(((pixel // W) + oy) / H))
-    camera = sensor_scene.scene.sensors()[0]
-    ray, weight = camera.sample_ray(0.0, 0.0, pos, mi.Point2f(0.5, 0.5))
-    beta = mi.Float(weight[0])
-    active = mi.Bool(True)
-    ctx = mi.BSDFContext()
+    ray, beta, active = transmit_interfaces(sensor_scene, np.stack([((pixel % W) + ox) / W, ((pixel // W) + oy) / H], axis=1))
+    si = sensor_scene.scene.ray_intersect(ray, active)
+    on_sheet = active & si.is_valid() & (si.shape.emitter() != None) & (mi.Frame3f.cos_theta(si.wi) > 0)  # noqa: E711 (Dr.Jit mask)
+    dr.eval(on_sheet, si.prim_index, si.p)
+    hit = np.array(on_sheet, dtype=bool)
     face = np.full(n, -1, dtype=np.int64)
-    hit_p = np.zeros((n, 3))
-    throughput = np.zeros(n)
-    for _ in range(DIRECT_DEPTH):
-        si = sensor_scene.scene.ray_intersect(ray, active)
-        active &= si.is_valid()
-        on_sheet = active & (si.shape.emitter() != None) & (mi.Frame3f.cos_theta(si.wi) > 0)  # noqa: E711 (Dr.Jit mask)
-        dr.eval(on_sheet, si.prim_index, si.p, beta)
-        m = np.array(on_sheet, dtype=bool) & (face < 0)
-        if m.any():
-            face[m], hit_p[m] = _hits(si, m)
-            throughput[m] = np.array(beta)[m]
-        active &= ~on_sheet
-        # transmitted through the dielectric (the sample that picks transmission): the weight
-        # Mitsuba returns is its estimator's (value / probability), so the probability, the Fresnel
-        # transmittance, is multiplied back in
-        bs, value = si.bsdf(ray).sample(ctx, si, mi.Float(1.0 - 1e-6), mi.Point2f(0.5, 0.5), active)
-        beta = beta * mi.Float(value[0]) * bs.pdf
-        active &= bs.pdf > 0
-        ray = si.spawn_ray(si.to_world(bs.wo))
-    hit = face >= 0
-    faces = sensor_scene.faces.astype(np.int64)
     bary = np.zeros((n, 3))
     if hit.any():
-        bary[hit] = _barycentric(hit_p[hit], sensor_scene.vertices_mm.astype(np.float64)[faces[face[hit]]])
-    return PrimarySamples(pixel, face, bary, np.where(hit, throughput, 0.0), k, W * H, H, W)
+        face[hit], p = _hits(si, hit)
+        faces = sensor_scene.faces.astype(np.int64)
+        bary[hit] = _barycentric(p, sensor_scene.vertices_mm.astype(np.float64)[faces[face[hit]]])
+    return PrimarySamples(pixel, face, bary, np.where(hit, beta, 0.0), k, W * H, H, W)
 
 
 def direct_image(samples: PrimarySamples, faces: np.ndarray, radiance) -> np.ndarray:

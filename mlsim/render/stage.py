@@ -1,6 +1,6 @@
-"""The optical stages of the ML rod array (``mlsim.ml_rod_array``): the render (Mitsuba: transport or
-path tier, with its transport matrix cached per sensor and view), the camera, and the DLLM's
-calibration frame."""
+"""The optical stages of the ML rod array (``mlsim.ml_rod_array``): the render (Mitsuba: transport,
+deformed or path tier, with its transport matrix cached per sensor and view), the camera, and the
+DLLM's calibration frame."""
 
 from __future__ import annotations
 
@@ -70,12 +70,20 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     sheet = _sheet(scene, em.patches, ctx)
     radiance = render.radiance_of(em.photons_per_s, em.patches.area_m2)
     spec = scene.fidelity.render
-    transport = None
+    transport = raster = None
     # where each sheet vertex sits in the mesh: of the sensor, not the episode (shared in-process)
     located = memo(("patches_in_mesh",) + patches_key(scene),
                     lambda: locate_points(episode.mesh_points, episode.mesh_tets, np.asarray(em.patches.vertices_m, dtype=float)))
     vertices = render.deformed_vertices(episode, em.patches.vertices_m, located)
-    if spec.tier == "transport":
+    if spec.tier == "deformed":
+        transport, raster = _deformed_parts(scene, sheet, ctx)
+        result = render.render_frames(sheet, radiance, "deformed", transport=transport, raster=raster, vertices_m=vertices, progress=ctx.progress)
+        result.info.update(transport_spp=transport.spp, transport_nnz=int(transport.matrix.nnz),
+                           transport_dropped_fraction=transport.dropped_fraction, transport_trace_s=transport.seconds)
+        ctx.log(f"[render] deformed tier: every frame's direct light rasterised on its deformed sheet ({spec.direct_samples_per_side}^2 samples "
+                f"per pixel), its bounces from the rest shape's matrix ({transport.spp} spp); the sheet moves up to "
+                f"{max(result.info['sheet_displacement_mm'] or [0.0]):.2f} mm")
+    elif spec.tier == "transport":
         transport = _cached_transport(scene, sheet, ctx)
         limit_mm = spec.path_above_mm
         result = render.render_frames(sheet, radiance, "transport", transport=transport, spp=spec.spp, seed=scene.seed, vertices_m=vertices,
@@ -94,11 +102,11 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
         result = render.render_frames(sheet, radiance, "path", spp=spec.spp, seed=scene.seed, vertices_m=vertices, progress=ctx.progress)
     result.info["device"] = sheet.device
     if scene.ambient.lamp != "none":
-        result.ambient, result.info["ambient"] = _ambient_image(scene, em.patches, sheet, transport)
+        result.ambient, result.info["ambient"] = _ambient_image(scene, em.patches, sheet, transport, raster)
     return result
 
 
-def _ambient_image(scene: Scene, patches, sheet, transport):
+def _ambient_image(scene: Scene, patches, sheet, transport, raster=None):
     """The ambient lamp's leak (mlsim.render.ambient) rendered once on the rest shape, at lamp level 1."""
     from mlsim import render
     from mlsim.render import ambient
@@ -108,7 +116,7 @@ def _ambient_image(scene: Scene, patches, sheet, transport):
                                        absorber=scene.optics.absorber, efficacy_lm_per_w=a.efficacy_lm_per_w, occlusion=a.occlusion)
     spec = scene.fidelity.render
     image = render.render_still(sheet, render.radiance_of(leak.photons_per_s, patches.area_m2), spec.tier, spp=spec.spp,
-                                seed=scene.seed ^ 0xA3B1E7, transport=transport)
+                                seed=scene.seed ^ 0xA3B1E7, transport=transport, raster=raster)
     top = patches.normals[:, 2] > 0.99
     info = {"radiant_power_w": leak.radiant_power_w, "shaded_fraction": leak.shaded_fraction,
             "irradiance_on_top_w_m2": float(leak.irradiance_w_m2[top].mean()) if top.any() else 0.0,
@@ -116,16 +124,32 @@ def _ambient_image(scene: Scene, patches, sheet, transport):
     return image, info
 
 
-def _cached_transport(scene: Scene, sheet, ctx: "RunContext"):
-    """The transport matrix, keyed on this sensor and view (not the load)."""
+def _cached_transport(scene: Scene, sheet, ctx: "RunContext", first_depth: int = 0):
+    """The transport matrix, keyed on this sensor and view (not the load); ``first_depth`` 3: the
+    matrix of the paths with a bounce (the deformed tier's)."""
     from mlsim.render import trace_transport
 
     spec = scene.fidelity.render
     payload = {"view": scene.content_hash(VIEW_FIELDS), "spp": spec.transport_spp, "drop": spec.transport_drop, "seed": scene.seed, "version": "1"}
+    what = "light-transport matrix"
+    if first_depth:
+        payload["first_depth"] = int(first_depth)
+        what = "matrix of the light's bounces"
     return cached_precompute(
         ctx, TRANSPORT, payload,
-        lambda: trace_transport(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, progress=ctx.progress),
-        f"[render] transport tier: tracing the light-transport matrix at {spec.transport_spp} spp (cached for this sensor and view)")
+        lambda: trace_transport(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, progress=ctx.progress,
+                                first_depth=first_depth),
+        f"[render] {spec.tier} tier: tracing the {what} at {spec.transport_spp} spp (cached for this sensor and view)")
+
+
+def _deformed_parts(scene: Scene, sheet, ctx: "RunContext | None" = None):
+    """The deformed tier's (bounces' matrix, cached on disk; DirectRaster, made in-process: 0.1-0.3 s)."""
+    from mlsim.render.direct_raster import direct_raster
+    from mlsim.render.reprojection import DIRECT_DEPTH
+
+    k = scene.fidelity.render.direct_samples_per_side
+    raster = memo(("direct_raster", stage_key(scene, "mesh"), scene.content_hash(VIEW_FIELDS), k), lambda: direct_raster(sheet, k))
+    return _cached_transport(scene, sheet, ctx, first_depth=DIRECT_DEPTH), raster
 
 
 def _render_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
@@ -146,7 +170,11 @@ def _calibration_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     geometry, (mesh, _) = inputs["geometry"], inputs["mesh"]
     patches = patches_of(scene, geometry, mesh)
     sheet = _sheet(scene, patches)
-    transport = _cached_transport(scene, sheet, ctx) if scene.fidelity.render.tier == "transport" else None
+    tier = scene.fidelity.render.tier
+    if tier == "deformed":
+        transport, raster = _deformed_parts(scene, sheet, ctx)
+        return calibration_frame(scene, patches, sheet, transport, raster)
+    transport = _cached_transport(scene, sheet, ctx) if tier == "transport" else None
     return calibration_frame(scene, patches, sheet, transport)
 
 
@@ -178,7 +206,7 @@ TRANSPORT = Stage(name="transport_matrix", doc="transport tier precompute", read
 
 RENDER = Stage(
     name="render",
-    doc="radiance of the ML light at the camera's lens per frame (Mitsuba: transport or path tier); writes radiance.npz and a PNG",
+    doc="radiance of the ML light at the camera's lens per frame (Mitsuba: transport, deformed or path tier); writes radiance.npz and a PNG",
     reads=VIEW_FIELDS + ("fidelity.render", "seed") + AMBIENT_IMAGE_FIELDS,
     needs=("emission", "solve"),
     run=_render_run,
