@@ -5,10 +5,11 @@ frame).
 
 Causes, one per variant against the one before it:
 
-- ``shipped``: the scene as it is (``scenes/direction_test.toml``: 1.5 mm mesh, camera noise);
+- ``shipped``: the scene as it is (``scenes/direction_test.toml``: 1.5 mm mesh, camera noise, the
+  deformed render tier);
 - ``noiseless camera``: ``camera.noise = false`` (shot, read and dark noise off; still quantised);
-- ``+ path 256 spp``: the frames that are path-traced (the sheet moved more than
-  ``fidelity.render.transport_max_displacement_mm``) at 256 instead of 16 samples per pixel;
+- ``+ path 64 spp``: every frame path-traced on the deformed sheet at 64 samples per pixel instead
+  of the deformed tier (whose bounces are the rest shape's);
 - ``+ no Bayer``: a monochrome sensor (no mosaic, no demosaicing);
 - ``2 mm mesh (noiseless)``: the default sensor's mesh, whose fTetWild asymmetry the scene's 1.5 mm avoids.
 
@@ -17,7 +18,7 @@ symmetric sensor gives none: what is left there is the mesh's and the noise's as
 them (15, 30, 60, 75 deg: the grid's anisotropy adds there), and the few-event-frames term, the
 mean over episodes of the circular spread of the pushed taxels' per-frame directions over the
 square root of their count (the standard error of the episode's mean). Prints a Markdown table and
-writes ``OUT/direction_scatter.json``. Usage (about 15 minutes on 2 cores with cold caches):
+writes ``OUT/direction_scatter.json``. Usage (about 25 minutes on 2 cores with cold caches):
 
     .venv/bin/python benchmarks/direction_scatter.py [--out out/direction_scatter] [--angles 0 15 ...]
 """
@@ -39,8 +40,8 @@ ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = {
     "shipped": {},
     "noiseless camera": {"camera.noise": False},
-    "+ path 256 spp": {"camera.noise": False, "fidelity.render.spp": 256},
-    "+ no Bayer": {"camera.noise": False, "fidelity.render.spp": 256, "camera.bayer": False},
+    "+ path 64 spp": {"camera.noise": False, "fidelity.render.tier": "path", "fidelity.render.spp": 64},
+    "+ no Bayer": {"camera.noise": False, "fidelity.render.tier": "path", "fidelity.render.spp": 64, "camera.bayer": False},
     "2 mm mesh (noiseless)": {"camera.noise": False, "fidelity.mesh.edge_length_mm": 2.0},
 }
 MIRROR_LINES_DEG = (0.0, 45.0, 90.0)
