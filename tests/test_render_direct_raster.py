@@ -105,14 +105,14 @@ def test_the_deformed_tier_is_the_direct_raster_plus_the_rest_bounces_and_tracks
     """The tier's image is the rasterised direct light on the deformed sheet plus the rest shape's
     bounces (exactly). At rest it is the full transport within Monte Carlo error (2 % per rod).
     With rod 0 bent 2.5 mm (and brightest), against two 512-spp path renders of the bent sheet:
-    per rod within 1.5 %, per 8 x 8 block within 3.5 % of the image norm. (On this small sheet the
+    per rod within 2 % (1.3-1.5 % measured), per 8 x 8 block within 3.5 % of the image norm. (On this small sheet the
     rest shape's transport is as close per rod, 1.2 %: the bounces, 19 % of the light, move the
     other way from the direct light; the demo's figures are in mlsim.render.reprojection.)"""
     g, V, F, sheet = small_sheet(48)
     rng = np.random.default_rng(2)
     e = (1e15 * (0.5 + rng.random(len(V))) * np.where(g.rod_of(V) == 0, 1.0, 0.2))[None].astype(np.float32)  # the bent rod brightest
     raster = direct_raster(sheet, 2)
-    bounces = trace_transport(sheet, spp=128, seed=5, first_depth=rp.DIRECT_DEPTH)
+    bounces = trace_transport(sheet, spp=128, seed=5, first_depth=rp.DIRECT_DEPTH, one_vertex=True)  # as the render stage traces it
     full = trace_transport(sheet, spp=128, seed=5)
     at_rest = render_frames(sheet, e, "deformed", transport=bounces, raster=raster).radiance
     np.testing.assert_allclose(blocks(at_rest), blocks(full.apply(e)), rtol=0.02)
@@ -123,8 +123,26 @@ def test_the_deformed_tier_is_the_direct_raster_plus_the_rest_bounces_and_tracks
     sheet.set_radiance(e[0])
     path = np.mean([sheet.render(512, 70 + s) for s in range(2)], axis=0)
     sheet.set_vertices(V)
-    np.testing.assert_allclose(blocks(got), blocks(path), rtol=0.015)
+    np.testing.assert_allclose(blocks(got), blocks(path), rtol=0.02)
     assert np.linalg.norm(blocks(got, 8) - blocks(path, 8)) < 0.035 * np.linalg.norm(blocks(path, 8))
+
+
+def test_one_vertex_per_hit_keeps_the_paths_and_the_mean_with_fewer_entries():
+    """The bounces' matrix with each hit drawn to one vertex (trace_transport(one_vertex=True)):
+    the same paths as the barycentric split, so every pixel's row sums to the same total (exactly,
+    up to float32); per rod within 2 % for a random emission (the draw's noise); fewer than 0.6 x
+    the entries; the same matrix for the same seed."""
+    g, V, _, sheet = small_sheet(32)
+    kw = dict(spp=32, seed=9, drop=0.0, first_depth=rp.DIRECT_DEPTH)
+    spread = trace_transport(sheet, **kw).matrix
+    one = trace_transport(sheet, one_vertex=True, **kw).matrix
+    np.testing.assert_allclose(np.asarray(one.sum(axis=1)).ravel(), np.asarray(spread.sum(axis=1)).ravel(), rtol=1e-5,
+                               atol=1e-6 * float(spread.sum(axis=1).max()))
+    e = 1e15 * (0.5 + np.random.default_rng(3).random(len(V)))
+    np.testing.assert_allclose(blocks((one @ e).reshape(32, 32)), blocks((spread @ e).reshape(32, 32)), rtol=0.02)
+    assert one.nnz < 0.6 * spread.nnz
+    again = trace_transport(sheet, one_vertex=True, **kw).matrix
+    assert (again != one).nnz == 0
 
 
 def test_bad_input_is_refused_with_the_fix():

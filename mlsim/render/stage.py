@@ -132,13 +132,13 @@ def _cached_transport(scene: Scene, sheet, ctx: "RunContext", first_depth: int =
     spec = scene.fidelity.render
     payload = {"view": scene.content_hash(VIEW_FIELDS), "spp": spec.transport_spp, "drop": spec.transport_drop, "seed": scene.seed, "version": "1"}
     what = "light-transport matrix"
-    if first_depth:
-        payload["first_depth"] = int(first_depth)
+    if first_depth:  # the bounces: each hit to one vertex drawn by its weight (trace_transport: unbiased, 0.4 x the entries)
+        payload.update(first_depth=int(first_depth), one_vertex=True)
         what = "matrix of the light's bounces"
     return cached_precompute(
         ctx, TRANSPORT, payload,
         lambda: trace_transport(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, progress=ctx.progress,
-                                first_depth=first_depth),
+                                first_depth=first_depth, one_vertex=bool(first_depth)),
         f"[render] {spec.tier} tier: tracing the {what} at {spec.transport_spp} spp (cached for this sensor and view)")
 
 

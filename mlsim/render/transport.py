@@ -101,7 +101,7 @@ def _hits(si, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def trace_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e-4, pass_spp: int = 16,
-                    progress: bool = False, first_depth: int = 0) -> TransportMatrix:
+                    progress: bool = False, first_depth: int = 0, one_vertex: bool = False) -> TransportMatrix:
     """Trace the transport matrix of a :class:`mlsim.render.sensor_scene.SensorScene` (module docstring).
 
     spp: samples per pixel, traced in passes of ``pass_spp`` (memory: about 100 bytes per ray);
@@ -109,6 +109,13 @@ def trace_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e
     first_depth: record only the sheet hits at this path depth or deeper (0: every hit; 3: only the
     paths with a bounce, :data:`mlsim.render.reprojection.DIRECT_DEPTH`). The paths and their random
     numbers do not depend on it, so the matrices of two depths ranges add up to the full one.
+    one_vertex: each recorded hit goes to one vertex of its face, drawn with its barycentric weight
+    (a seeded generator of its own: the paths do not change), instead of to all three by weight.
+    Unbiased (the draw's mean is the interpolation), and a third of the entries per hit: for the
+    bounces, whose pixels each sum many diffuse hits, the demo's matrix at 64 spp has 2.6 M entries
+    instead of 6.4 M at the same error against a 512 spp trace (per rod 0.39 %, per pixel 25 %, both
+    the Monte Carlo noise of 64 spp). Not for direct light: a pixel's few direct hits would turn
+    its smooth interpolation into noise.
     """
     from mlsim.render.sensor_scene import use_variant
 
@@ -155,10 +162,18 @@ def trace_transport(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e
             m = np.array(hit, dtype=bool)
             if depth >= first_depth and m.any():
                 prim, p = _hits(si, m)
-                b = _barycentric(p, verts[faces[prim]]) * (np.array(beta)[m] / spp)[:, None]  # the mean over all spp
-                rows.append(np.repeat(pixel_np[m], 3))
-                cols.append(faces[prim].ravel())
-                vals.append(b.ravel())
+                b = _barycentric(p, verts[faces[prim]])
+                weight = np.array(beta)[m] / spp  # the mean over all spp
+                if one_vertex:
+                    u = np.random.default_rng([int(seed) & 0xFFFFFFFF, k, depth]).random(len(b))
+                    pick = np.minimum((u[:, None] >= np.cumsum(b, axis=1)).sum(axis=1), 2)
+                    rows.append(pixel_np[m])
+                    cols.append(faces[prim][np.arange(len(pick)), pick])
+                    vals.append(weight)
+                else:
+                    rows.append(np.repeat(pixel_np[m], 3))
+                    cols.append(faces[prim].ravel())
+                    vals.append((b * weight[:, None]).ravel())
             if depth == sensor_scene.max_depth - 1:
                 break
             bsdf = si.bsdf(ray)
