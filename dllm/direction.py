@@ -18,7 +18,7 @@ trailing-side light dominates the disk's centroid. Measured on ``scenes/directio
 0 and 90 deg (push frames, 2 mm mesh): the pushed rod's emission centroid sits 1.1-1.2 mm behind
 the rod axis on the tip (a third of its light) and 0.6-1.8 mm ahead near the base (two fifths);
 its DLLM direction (1.5 mm mesh, the deformed render tier) is within 5 deg of theta + 180 over the
-full circle (mean absolute error 2.0 deg, 24 directions; 1.5 deg over 0-90). SPEC 1.5 calls the applied angle the
+full circle (mean absolute error 2.0 deg, 24 directions; 1.4 deg over 0-90). SPEC 1.5 calls the applied angle the
 "approach angle", which reads as the bearing the probe approaches from. The sign belongs to this
 contact, the probe's end pressed on the tip and dragged: a probe that runs into rods' sides (the
 tiny scene's sphere sliding from between four rods) leaves their light roughly on the side it moves

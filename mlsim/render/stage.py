@@ -207,6 +207,7 @@ TRANSPORT = Stage(name="transport_matrix", doc="transport tier precompute", read
 RENDER = Stage(
     name="render",
     doc="radiance of the ML light at the camera's lens per frame (Mitsuba: transport, deformed or path tier); writes radiance.npz and a PNG",
+    version="2",  # 2: the deformed tier's bounces with one vertex drawn per hit (its first version spread each hit over three)
     reads=VIEW_FIELDS + ("fidelity.render", "seed") + AMBIENT_IMAGE_FIELDS,
     needs=("emission", "solve"),
     run=_render_run,
@@ -230,6 +231,7 @@ CAMERA = Stage(
 
 CALIBRATION = Stage(
     name="calibration",
+    version="2",  # 2: rendered by the deformed tier's one-vertex bounces where that is the tier
     doc="the DLLM's calibration frame: the sensor without its absorber under the white calibration lamp, auto-exposed; writes a PNG and JSON",
     reads=VIEW_FIELDS + ("fidelity.render", "seed", "calibration", "camera", "optics", "ambient.occlusion"),
     needs=("geometry", "mesh"),
