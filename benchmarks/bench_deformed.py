@@ -31,7 +31,7 @@ import numpy as np
 from mlsim import pipeline, render
 from mlsim.render.direct_raster import direct_raster
 from mlsim.render.optics import disk_masks
-from mlsim.render.reprojection import DIRECT_DEPTH, split_transport
+from mlsim.render.reprojection import split_transport, trace_bounces
 from mlsim.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,8 +61,7 @@ def scene_figures(path, per_side: int = 2, repeats: int = 9, error: bool = True)
     direct, _ = split_transport(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop)
     trace_s = time.perf_counter() - t0
     # the tier's bounces as the render stage traces them (one vertex per hit, mlsim.render.stage._cached_transport)
-    bounces = render.trace_transport(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, first_depth=DIRECT_DEPTH,
-                                     one_vertex=True)
+    bounces = trace_bounces(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop)
     t0 = time.perf_counter()
     raster = direct_raster(sheet, per_side)
     raster_s = time.perf_counter() - t0

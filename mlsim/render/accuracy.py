@@ -159,12 +159,11 @@ def render_accuracy(scene, spps=(1, 4, 16, 64), transport_spps=(16, 64), referen
             rows.append(RenderRow("transport+path", int(spp), False, per_frame * 1e3, trace_s, _errors(hybrid[..., None] * k, reference, masks)))
         if direct_per_sides:
             from mlsim.render.direct_raster import direct_raster
-            from mlsim.render.reprojection import DIRECT_DEPTH
+            from mlsim.render.reprojection import trace_bounces
 
             log(f"[accuracy] deformed: bounces traced at {spp} spp, direct light rasterised at {', '.join(f'{n}x{n}' for n in direct_per_sides)}")
             t0 = time.perf_counter()
-            bounces = render.trace_transport(sheet, spp=spp, seed=50_000 + spp, drop=scene.fidelity.render.transport_drop, progress=progress,
-                                             first_depth=DIRECT_DEPTH, one_vertex=True)
+            bounces = trace_bounces(sheet, spp=spp, seed=50_000 + spp, drop=scene.fidelity.render.transport_drop, progress=progress)
             bounce_s = time.perf_counter() - t0
             for n in direct_per_sides:
                 t0 = time.perf_counter()

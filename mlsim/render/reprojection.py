@@ -49,7 +49,7 @@ import numpy as np
 
 from mlsim.render.transport import TransportMatrix, _barycentric, _hits, trace_transport
 
-__all__ = ["DIRECT_DEPTH", "PrimarySamples", "split_transport", "transmit_interfaces", "primary_samples", "direct_image"]
+__all__ = ["DIRECT_DEPTH", "PrimarySamples", "split_transport", "trace_bounces", "transmit_interfaces", "primary_samples", "direct_image"]
 
 #: intersections on a direct path: the acrylic's bottom, the core's bottom, the sheet
 DIRECT_DEPTH = 3
@@ -86,6 +86,13 @@ class PrimarySamples:
     n_pixels: int
     height_px: int
     width_px: int
+
+
+def trace_bounces(sensor_scene, spp: int = 64, seed: int = 0, drop: float = 1e-4, progress: bool = False) -> TransportMatrix:
+    """The deformed tier's matrix of the light's bounces on the sheet as it is: the hits after the
+    direct one (``first_depth`` = :data:`DIRECT_DEPTH`), each drawn to one vertex of its face
+    (``one_vertex``, :func:`mlsim.render.transport.trace_transport`)."""
+    return trace_transport(sensor_scene, spp=spp, seed=seed, drop=drop, progress=progress, first_depth=DIRECT_DEPTH, one_vertex=True)
 
 
 def transmit_interfaces(sensor_scene, film_positions):

@@ -124,32 +124,31 @@ def _ambient_image(scene: Scene, patches, sheet, transport, raster=None):
     return image, info
 
 
-def _cached_transport(scene: Scene, sheet, ctx: "RunContext", first_depth: int = 0):
-    """The transport matrix, keyed on this sensor and view (not the load); ``first_depth`` 3: the
-    matrix of the paths with a bounce (the deformed tier's)."""
+def _cached_transport(scene: Scene, sheet, ctx: "RunContext", bounces: bool = False):
+    """The transport matrix, keyed on this sensor and view (not the load); ``bounces``: the deformed
+    tier's matrix of the light's bounces (:func:`mlsim.render.reprojection.trace_bounces`)."""
     from mlsim.render import trace_transport
+    from mlsim.render.reprojection import DIRECT_DEPTH, trace_bounces
 
     spec = scene.fidelity.render
     payload = {"view": scene.content_hash(VIEW_FIELDS), "spp": spec.transport_spp, "drop": spec.transport_drop, "seed": scene.seed, "version": "1"}
-    what = "light-transport matrix"
-    if first_depth:  # the bounces: each hit to one vertex drawn by its weight (trace_transport: unbiased, 0.4 x the entries)
-        payload.update(first_depth=int(first_depth), one_vertex=True)
-        what = "matrix of the light's bounces"
+    trace, what = trace_transport, "light-transport matrix"
+    if bounces:
+        payload.update(first_depth=DIRECT_DEPTH, one_vertex=True)
+        trace, what = trace_bounces, "matrix of the light's bounces"
     return cached_precompute(
         ctx, TRANSPORT, payload,
-        lambda: trace_transport(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, progress=ctx.progress,
-                                first_depth=first_depth, one_vertex=bool(first_depth)),
+        lambda: trace(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, progress=ctx.progress),
         f"[render] {spec.tier} tier: tracing the {what} at {spec.transport_spp} spp (cached for this sensor and view)")
 
 
 def _deformed_parts(scene: Scene, sheet, ctx: "RunContext | None" = None):
     """The deformed tier's (bounces' matrix, cached on disk; DirectRaster, made in-process: 0.1-0.3 s)."""
     from mlsim.render.direct_raster import direct_raster
-    from mlsim.render.reprojection import DIRECT_DEPTH
 
     k = scene.fidelity.render.direct_samples_per_side
     raster = memo(("direct_raster", stage_key(scene, "mesh"), scene.content_hash(VIEW_FIELDS), k), lambda: direct_raster(sheet, k))
-    return _cached_transport(scene, sheet, ctx, first_depth=DIRECT_DEPTH), raster
+    return _cached_transport(scene, sheet, ctx, bounces=True), raster
 
 
 def _render_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
