@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["RodSections", "rod_sections", "axis_drop", "rotation_offset", "second_order_points", "pdelta_load", "RodKinematics",
+__all__ = ["RodSections", "ThinSlabError", "rod_sections", "axis_drop", "rotation_offset", "second_order_points", "pdelta_load", "RodKinematics",
            "ROD_KINEMATICS", "first_order_force_error"]
 
 ROD_KINEMATICS = ("first_order", "second_order")
@@ -108,10 +108,24 @@ def _face_rotation_rows(points: np.ndarray, verts: np.ndarray):
     return rows, cols, vals
 
 
+class ThinSlabError(ValueError):
+    """A slab of a rod holds fewer than 3 vertices: the mesh is too coarse for that many slabs."""
+
+
 def rod_sections(points: np.ndarray, tets: np.ndarray, tet_rod: np.ndarray, rods, base_z_m: float, tip_z_m: float,
-                 n_slabs: int = N_SLABS) -> RodSections:
+                 n_slabs: int | None = None) -> RodSections:
     """The section observation of the rods ``rods`` of a mesh (points (P, 3) m, tets (T, 4), tet_rod (T,))
-    between the base's top ``base_z_m`` and the tips ``tip_z_m``."""
+    between the base's top ``base_z_m`` and the tips ``tip_z_m``.
+
+    ``n_slabs`` None: the most slabs up to :data:`N_SLABS` in which every slab of every rod holds at
+    least 3 vertices (a short rod on a coarse mesh, e.g. 6 mm on 2 mm edges, takes fewer)."""
+    if n_slabs is None:
+        for n in range(N_SLABS, 0, -1):
+            try:
+                return rod_sections(points, tets, tet_rod, rods, base_z_m, tip_z_m, n)
+            except ThinSlabError:
+                if n == 1:
+                    raise
     rods = np.asarray(rods, dtype=int)
     edges = np.linspace(base_z_m, tip_z_m, n_slabs + 1)
     tol = 1e-9
@@ -125,7 +139,7 @@ def rod_sections(points: np.ndarray, tets: np.ndarray, tet_rod: np.ndarray, rods
         sets = [verts[(z >= edges[k] - tol) & (z <= edges[k + 1] + tol)] for k in range(n_slabs)] + [top]
         for k, sl in enumerate(sets):
             if len(sl) < 3:
-                raise ValueError(f"rod {r}: slab {k} of {n_slabs} holds {len(sl)} vertices; use fewer slabs (n_slabs) for this mesh")
+                raise ThinSlabError(f"rod {r}: slab {k} of {n_slabs} holds {len(sl)} vertices; use fewer slabs (n_slabs) for this mesh")
             spread = np.linalg.svd(points[sl] - points[sl].mean(axis=0), compute_uv=False)
             # a slab of one vertex layer is (nearly) plane: its 3-D fit is singular, take its plane's tilt
             flat = k == n_slabs or spread[-1] < FLAT_SLAB * spread[0]

@@ -1,4 +1,4 @@
-"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | train | evaluate | ablation``.
+"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | sweep | train | evaluate | ablation``.
 
 Exit codes: 0 success, 2 bad input (an invalid scene or argument; the message names the field),
 1 failure (a stage could not finish; the message says what to try). Unexpected errors are bugs:
@@ -289,6 +289,36 @@ def cmd_dataset(args) -> int:
     return EXIT_OK
 
 
+def cmd_sweep(args) -> int:
+    from mlsim.sweep.run import DEFAULT_DIRECTION, read_load, sweep
+    from mlsim.sweep.variants import parse_vary
+
+    scene = _load(args)
+    varies = parse_vary(args.vary)
+    if not varies:
+        raise SceneError([Problem("--vary", None, "give at least one field to vary, e.g. --vary sensor.rod.height_mm=6,7.5,9,10.5,12")])
+    if args.executor == "local" and args.address:
+        raise SceneError([Problem("--address", args.address, "only with --executor ray")])
+    from mlsim.sweep.run import METRICS
+
+    wanted = tuple(m.strip() for part in args.metrics or [",".join(METRICS)] for m in part.split(",") if m.strip())
+    loads = [read_load(p) for p in args.load] if args.load else None
+    direction = read_load(args.direction_scene or DEFAULT_DIRECTION) if "direction" in wanted else None
+    out = Path(args.out) if args.out else Path("out") / f"{scene.name}_sweep"
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    try:
+        summary = sweep(scene, varies, out, mode="zip" if args.zip else "grid", loads=loads, direction=direction, angles=tuple(args.angles),
+                        wanted=wanted, workers=args.workers, executor=args.executor, address=args.address, cache_dir=args.cache,
+                        progress=not args.quiet, log=log)
+    except KeyboardInterrupt:
+        print(f"interrupted: the finished variants are stored in {out}; rerun the same command to complete the sweep", file=sys.stderr)
+        return 130
+    print((out / "sweep.md").read_text())
+    print(f"{summary['stored']}/{summary['variants']} variants in {out} ({summary['run_now']} now in {summary['wall_s']} s); "
+          f"wrote {', '.join(Path(f).name for f in summary['files'])}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mlsim", description="Simulate the mechanoluminescent visuotactile sensor.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -363,6 +393,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cache", help="cache directory for the sensor's precomputes")
     p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
     p.set_defaults(func=cmd_dataset)
+    p = sub.add_parser("sweep", help="compare rod geometries and materials: brightness, sensitivity, direction, separation, tear risk per variant")
+    common(p)
+    p.add_argument("--vary", action="append", metavar="PATH=V1,V2,...", help="a field and its values, e.g. sensor.rod.height_mm=6,7.5,9,10.5,12 "
+                   "or sensor.materials.core=SC37,PDMS,DS30 (repeat for more fields)")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--grid", action="store_true", help="every combination of the varied values (default)")
+    mode.add_argument("--zip", action="store_true", help="the i-th values of every --vary together")
+    p.add_argument("--load", action="append", metavar="SCENE", help="a scene file whose [load] every variant gets (repeat; default: "
+                   "scenes/press.toml and scenes/swipe.toml)")
+    p.add_argument("--direction-scene", metavar="SCENE", help="the direction study's load (default scenes/direction_test.toml)")
+    p.add_argument("--angles", type=float, nargs="+", default=[0.0, 45.0, 90.0], metavar="DEG", help="the direction study's push directions")
+    p.add_argument("--metrics", action="append", default=None, metavar="LIST",
+                   help="what to measure (comma-separated; default all): brightness, tear, separation, direction")
+    p.add_argument("--out", help="output directory (default out/<scene name>_sweep); a rerun into it resumes")
+    p.add_argument("--workers", type=int, default=max(1, min(os.cpu_count() or 1, 4)),
+                   help="variants in parallel, one thread each (default: the CPU count, at most 4: each holds its sensor's factorised "
+                        "stiffness, about 1 GB on the default mesh)")
+    p.add_argument("--executor", choices=["local", "ray"], default="local", help="local process pool, or Ray (pip install 'mlsim[ray]')")
+    p.add_argument("--address", help="Ray cluster address (default: start a local Ray)")
+    p.add_argument("--cache", help="cache directory (default $MLSIM_CACHE_DIR or ~/.cache/mlsim); variants share what they do not change")
+    p.set_defaults(func=cmd_sweep)
     try:
         from classifiers.cli import add_parsers
     except ImportError:

@@ -188,3 +188,19 @@ def test_second_order_brings_the_tiny_slide_to_the_nonlinear_tier(tiny_mesh):
     assert err["second_order"]["rod_base_von_mises"] < 0.10
     assert err["second_order"]["rod_contact_force"] < 0.15
     assert err["second_order"]["tip_displacement"] < 0.10
+
+
+def test_sections_take_fewer_slabs_where_the_mesh_is_too_coarse(tiny_mesh):
+    """A short stretch of rod on the tiny mesh's 2.5 mm edges cannot hold 8 slabs of 3 vertices: the
+    default count falls back to the most that it can (a 6 mm rod on the 2 mm default mesh did this in a
+    height sweep), an explicit count keeps the error."""
+    scene, _, mesh, _ = tiny_mesh
+    base_z = scene.sensor.base.thickness_mm * 1e-3
+    short_tip = base_z + 2.0e-3
+    with pytest.raises(rk.ThinSlabError, match="use fewer slabs"):
+        rk.rod_sections(mesh.points, mesh.tets, mesh.tet_rod, [0], base_z, short_tip, n_slabs=rk.N_SLABS)
+    sec = rk.rod_sections(mesh.points, mesh.tets, mesh.tet_rod, [0], base_z, short_tip)
+    assert 1 <= sec.n_slabs < rk.N_SLABS
+    assert sec.dz.sum() == pytest.approx(2.0e-3)
+    full = rk.rod_sections(mesh.points, mesh.tets, mesh.tet_rod, [0], base_z, qs.tip_height_m(mesh))
+    assert full.n_slabs == rk.N_SLABS  # where 8 fit, nothing changes

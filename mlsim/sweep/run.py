@@ -1,0 +1,296 @@
+"""``mlsim sweep``: every variant of a scene through the loads, the calibration frame and a short
+direction study, in parallel, resumable, into one folder (orchestration layer).
+
+1. The variants (:mod:`mlsim.sweep.variants`); one the scene model refuses is stored at once with
+   its reason.
+2. The variants already stored in ``DIR/variants/`` are skipped: a rerun after a kill resumes.
+3. Each variant runs on a worker (:func:`run_variant_job`): for each load (by default the press of
+   ``scenes/press.toml`` and the swipe of ``scenes/swipe.toml``) the pipeline to the camera; the
+   calibration frame and the DLLM's Hough circles; the direction study of
+   ``scenes/direction_test.toml`` at a few angles. Every stage goes through the shared cache by its
+   key, so variants share the stages they do not change (a material sweep meshes once). A load that
+   fails (a solve the tier refuses, a mesh that fails) is recorded with its reason; the sweep goes on.
+4. The driver stores each variant's record as it arrives (``DIR/variants/<id>.json``, atomically),
+   with a progress bar (ETA), then writes the report (:mod:`mlsim.sweep.report`).
+
+A load is a scene file whose ``[load]`` replaces the variant's load, with the way it must be stepped
+(``fidelity.solve.substeps`` and ``rod_kinematics``, where the file gives them; the swipe needs both).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import tomllib
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from mlsim.errors import Problem, SceneError
+from mlsim.io import atomic_bytes
+from mlsim.sweep import metrics
+from mlsim.sweep.variants import Variant, Vary
+
+__all__ = ["Load", "read_load", "SCENES", "DEFAULT_LOADS", "DEFAULT_DIRECTION", "DEFAULT_ANGLES", "METRICS", "run_variant_job", "sweep",
+           "stored_records"]
+
+SCENES = Path(__file__).resolve().parents[2] / "scenes"
+DEFAULT_LOADS = (SCENES / "press.toml", SCENES / "swipe.toml")
+DEFAULT_DIRECTION = SCENES / "direction_test.toml"
+DEFAULT_ANGLES = (0.0, 45.0, 90.0)
+#: what a sweep can measure; each costs its own stages (``--metrics``)
+METRICS = ("brightness", "tear", "separation", "direction")
+#: the fields of ``fidelity.solve`` a load file carries along (how the load must be stepped)
+LOAD_SOLVE_FIELDS = ("substeps", "rod_kinematics")
+
+
+@dataclass(frozen=True)
+class Load:
+    """A named load: the ``[load]`` section and the solve settings it needs (dicts, as in TOML)."""
+
+    name: str
+    load: dict
+    solve: dict
+
+    def apply(self, scene, outputs: tuple[str, ...]):
+        """The scene under this load."""
+        values = {"load": self.load, "outputs": list(outputs)}
+        values.update({f"fidelity.solve.{k}": v for k, v in self.solve.items()})
+        return scene.with_values(values)
+
+
+def read_load(path: str | Path) -> Load:
+    """The load of a scene file: its ``[load]``, named by the file's stem."""
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError([Problem("--load", str(path), "no such scene file")])
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    if "load" not in data:
+        raise SceneError([Problem("--load", str(path), "the file has no [load] section to apply to the variants")])
+    solve = data.get("fidelity", {}).get("solve", {})
+    return Load(path.stem, data["load"], {k: solve[k] for k in LOAD_SOLVE_FIELDS if k in solve})
+
+
+# ------------------------------------------------------------------------------------ the worker
+def _reason(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {' '.join(t.strip() for t in text)[:600]}"
+
+
+def _run(scene, cache_dir, outputs):
+    from mlsim import pipeline
+
+    return pipeline.run(scene, cache=pipeline.Cache(cache_dir), outputs=outputs, progress=False, log=lambda _m: None)
+
+
+def _stage_record(res) -> dict:
+    return {"actions": {s.stage.name: s.action for s in res.steps}, "seconds": {k: round(v, 3) for k, v in res.seconds.items()}}
+
+
+def _load_metrics(scene, load: Load, cache_dir, wanted) -> dict:
+    """One load on one variant: brightness (camera) and tear risk (solve)."""
+    from dllm.calibration import grey
+    from mlsim.render import rod_disks_px
+    from mlsim.render.optics import disk_masks
+
+    outputs = ("camera",) if "brightness" in wanted else ("solve",)
+    s = load.apply(scene, outputs)
+    res = _run(s, cache_dir, outputs)
+    ep = res.results["solve"]
+    out = {"ok": True, **_stage_record(res)}
+    if "tear" in wanted:
+        out.update(metrics.tear_risk(ep, s))
+    out["peak_normal_force_n"] = float(np.max(ep.normal_force_n))
+    summary = ep.summary()
+    out["solve_tier"] = summary["tier"]
+    out["solve_error_estimate"] = summary.get("geometric_error_estimate")
+    if "brightness" in wanted:
+        cam = res.results["camera"]
+        frames = np.stack([grey(f) for f in cam.frames]) if len(cam.frames) else np.zeros((0, 1, 1), np.uint8)
+        centres, radius = rod_disks_px(s)
+        masks = disk_masks(frames.shape[1], frames.shape[2], centres, radius)
+        out.update(metrics.brightness(cam, frames, masks))
+        force = out["peak_normal_force_n"]
+        out["photons_per_newton"] = out["total_photons"] / force if force > 0 else None
+        out["render_tier"] = s.fidelity.render.tier
+    return out
+
+
+def _separation(scene, cache_dir) -> dict:
+    from dllm.calibration import CalibrationError, grey
+    from dllm.episode import calibrate_scene
+    from mlsim.render import rod_disks_px
+
+    s = scene.with_values({"outputs": ["calibration"]})
+    res = _run(s, cache_dir, ("calibration",))
+    rgb = res.results["calibration"].rgb
+    centres, radius = rod_disks_px(s)
+    out = {"ok": True, **_stage_record(res), **metrics.separation(grey(rgb), centres, radius, s.sensor.rows, s.sensor.cols)}
+    try:
+        cal, _ = calibrate_scene(s, rgb)
+    except CalibrationError as exc:
+        out.update(hough_ok=False, hough_reason=str(exc).split(";")[0], hough_max_offset_px=None)
+    else:
+        offset = np.linalg.norm(cal.centres_px[:, None] - centres[None], axis=2).min(axis=1)
+        out.update(hough_ok=True, hough_reason=None, hough_max_offset_px=float(offset.max()))
+    return out
+
+
+def _direction(scene, load: Load, angles, cache_dir) -> dict:
+    from dllm.direction import direction_study, summary
+    from mlsim import pipeline
+
+    s = load.apply(scene, ("dllm",))
+    t0 = time.perf_counter()
+    rows = direction_study(s, angles, None, pipeline.Cache(cache_dir), progress=False, log=lambda _m: None)
+    figures = summary(rows)
+    return {"ok": True, "mean_abs_error_deg": figures["mean_abs_error_deg"], "angles_deg": [float(a) for a in angles],
+            "errors_deg": [r.error_deg for r in rows], "without_events": figures["episodes_without_events"],
+            "seconds": {"total": round(time.perf_counter() - t0, 3)}}
+
+
+def _guarded(fn, *args) -> dict:
+    """``fn(*args)``, or the reason it failed: a failing part never stops the variant or the sweep."""
+    try:
+        return fn(*args)
+    except Exception as exc:  # noqa: BLE001 (a variant's failure is a result of the sweep, reported with its type)
+        return {"ok": False, "reason": _reason(exc), "traceback": traceback.format_exc(limit=6)}
+
+
+def run_variant_job(job: dict) -> dict:
+    """One variant: ``job`` holds ``scene`` (a scene dict), ``loads`` and ``direction`` (Load dicts),
+    ``angles``, ``metrics``, ``cache_dir``. Returns the variant's record (JSON-ready)."""
+    from mlsim.scene import scene_from_dict
+
+    t0 = time.perf_counter()
+    scene = scene_from_dict(job["scene"], source=f"sweep variant {job['variant_id']}")
+    wanted = set(job["metrics"])
+    core = scene.material("core").young_modulus_pa.value
+    record = {"loads": {}, "beam_strain_per_n": metrics.beam_strain_per_newton(scene.sensor.rod.height_mm, scene.sensor.rod.diameter_mm, core)}
+    if wanted & {"brightness", "tear"}:
+        for ld in job["loads"]:
+            record["loads"][ld["name"]] = _guarded(_load_metrics, scene, Load(**ld), job["cache_dir"], wanted)
+    if "separation" in wanted:
+        record["separation"] = _guarded(_separation, scene, job["cache_dir"])
+    if "direction" in wanted and job["direction"] is not None:
+        record["direction"] = _guarded(_direction, scene, Load(**job["direction"]), job["angles"], job["cache_dir"])
+    record["seconds"] = round(time.perf_counter() - t0, 3)
+    return record
+
+
+# ------------------------------------------------------------------------------------ the driver
+def _record_path(out: Path, variant_id: str) -> Path:
+    return out / "variants" / f"{variant_id}.json"
+
+
+def stored_records(out_dir: str | Path) -> dict[str, dict]:
+    """The variants' records stored in a sweep folder, by variant id."""
+    folder = Path(out_dir) / "variants"
+    return {p.stem: json.loads(p.read_text()) for p in sorted(folder.glob("v*.json"))} if folder.is_dir() else {}
+
+
+def _store(out: Path, variant: Variant, record: dict, base_hash: str) -> None:
+    full = {"variant_id": variant.variant_id, "index": variant.index, "label": variant.label, "values": variant.values,
+            "base_scene_hash": base_hash, "scene_hash": variant.scene.content_hash() if variant.scene is not None else None,
+            "buildable": variant.scene is not None, "reason": variant.reason, **record}
+    path = _record_path(out, variant.variant_id)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_bytes(path, json.dumps(full, indent=1, default=_json_default).encode())
+
+
+def _json_default(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+def sweep(base, varies: list[Vary], out_dir: str | Path, *, mode: str = "grid", loads: list[Load] | None = None,
+          direction: Load | None = None, angles=DEFAULT_ANGLES, wanted=METRICS, workers: int = 1, executor: str = "local",
+          address: str | None = None, cache_dir: str | Path | None = None, progress: bool = True,
+          log: Callable[[str], None] = print, limit: int | None = None) -> dict:
+    """Run (or complete) a sweep into ``out_dir``; returns its summary and writes the report.
+
+    ``limit``: stop after this many new variants (for tests; a rerun continues)."""
+    from tqdm.auto import tqdm
+
+    from mlsim import pipeline
+    from mlsim.dataset.executors import map_unordered
+    from mlsim.sweep.report import write_report
+    from mlsim.sweep.variants import variants as make_variants
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    bad = [m for m in wanted if m not in METRICS]
+    if bad:
+        raise SceneError([Problem("--metrics", ",".join(bad), f"unknown metric; choose from: {', '.join(METRICS)}")])
+    loads = [read_load(p) for p in DEFAULT_LOADS] if loads is None else loads
+    if direction is None and "direction" in wanted:
+        direction = read_load(DEFAULT_DIRECTION)
+    cache = pipeline.Cache(cache_dir)
+    vs = make_variants(base, varies, mode)
+    base_hash = base.content_hash()
+    meta = {"base_scene": base.model_dump(mode="json"), "base_scene_hash": base_hash, "mode": mode,
+            "varies": [{"path": v.path, "values": list(v.values)} for v in varies], "loads": [vars(ld) for ld in loads],
+            "direction": None if direction is None else vars(direction), "angles_deg": [float(a) for a in angles],
+            "metrics": list(wanted), "versions": pipeline.package_versions()}
+    meta_path = out / "sweep.json"
+    if meta_path.is_file():
+        old = json.loads(meta_path.read_text())
+        same = {k: old.get(k) for k in ("base_scene_hash", "mode", "varies", "loads", "direction", "angles_deg", "metrics")}
+        if same != {k: json.loads(json.dumps(meta[k])) for k in same}:
+            raise SceneError([Problem("--out", str(out), "holds a different sweep (scene, --vary, loads or metrics differ); "
+                                      "choose another folder or delete it")])
+    atomic_bytes(meta_path, json.dumps(meta, indent=1).encode())
+    done = stored_records(out)
+    for v in vs:
+        if v.scene is None and v.variant_id not in done:
+            _store(out, v, {"loads": {}, "seconds": 0.0}, base_hash)
+    done = stored_records(out)
+    todo = [v for v in vs if v.variant_id not in done]
+    if limit is not None:
+        todo = todo[: max(int(limit), 0)]
+    refused = sum(v.scene is None for v in vs)
+    log(f"[sweep] {len(vs)} variants ({refused} refused by the scene model), {len(vs) - len(todo) - refused} already stored, "
+        f"{len(todo)} to run on {workers} {executor} worker(s)")
+    common = {"loads": [vars(ld) for ld in loads], "direction": None if direction is None else vars(direction),
+              "angles": [float(a) for a in angles], "metrics": list(wanted), "cache_dir": str(cache.root)}
+    by_id = {v.variant_id: v for v in todo}
+    jobs = ({"variant_id": v.variant_id, "episode_id": v.label, "scene": v.scene.model_dump(mode="json"), **common} for v in todo)
+    threads = max(1, (os.cpu_count() or 1) // max(workers, 1))
+    bar = tqdm(total=len(vs), initial=len(vs) - len(todo), unit="variant", desc="sweep", disable=None if progress else True, smoothing=0.0)
+    t0 = time.perf_counter()
+    try:
+        for job, record in map_unordered(run_variant_job, jobs, executor=executor, workers=workers, address=address,
+                                         threads_per_worker=threads):
+            v = by_id[job["variant_id"]]
+            _store(out, v, record, base_hash)
+            failed = [f"{name}: {r['reason']}" for name, r in _parts(record) if not r.get("ok", True)]
+            log(f"[sweep] {v.label}: {record['seconds']:.0f} s" + (f"; failed {'; '.join(failed)}" if failed else ""))
+            bar.update(1)
+    finally:
+        bar.close()
+    wall = time.perf_counter() - t0
+    records = stored_records(out)
+    order = {v.variant_id: v.index for v in vs}
+    records = [records[k] for k in sorted(records, key=lambda k: order.get(k, 1 << 30)) if k in order]
+    summary = {"variants": len(vs), "stored": len(records), "complete": len(records) == len(vs), "wall_s": round(wall, 2),
+               "run_now": len(todo), "workers": workers, "executor": executor}
+    files = write_report(out, records, varies, meta, summary)
+    summary["files"] = [str(f) for f in files]
+    atomic_bytes(out / "summary.json", json.dumps(summary, indent=1).encode())
+    log(f"[sweep] {len(todo)} variants in {wall:.0f} s; report in {out}")
+    return summary
+
+
+def _parts(record: dict):
+    for name, r in record.get("loads", {}).items():
+        yield name, r
+    for name in ("separation", "direction"):
+        if name in record:
+            yield name, record[name]
