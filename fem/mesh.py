@@ -584,8 +584,10 @@ def build_mesh(g: "MeshableBody", params: MeshParams, progress: bool = True) -> 
     bar = tqdm(total=params.retries + 1, desc="meshing (fTetWild)", unit="try", disable=None if progress else True, leave=False, mininterval=0.5)
     try:
         for k in range(params.retries + 1):
-            # Perturb the edge length on retries: fTetWild's failures depend on the size.
-            edge_mm = params.edge_length_m * 1e3 * (1.0 + 0.04 * math.ceil(k / 2) * (-1) ** k)
+            # Perturb the edge length on retries: fTetWild's failures depend on the size. Coarser first
+            # (+4 %, -4 %, +8 %): it meshes faster (the 7.5 mm rods of a height sweep: 190 s to a mesh with
+            # degenerate tets at 2 mm, then 240 s to the timeout at 1.92 mm, where 2.08 mm took 46 s)
+            edge_mm = params.edge_length_m * 1e3 * (1.0 + 0.04 * math.ceil(k / 2) * (-1) ** (k + 1))
             t0 = time.perf_counter()
             try:
                 pts_mm, tets = _run_tetwild(vertices_mm, faces_in, edge_mm, epsilon_rel, params.coarsen, params.timeout_s, bar)

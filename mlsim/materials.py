@@ -129,8 +129,8 @@ _TABLE = {
         young_modulus_pa=_gent(30),
         poisson_ratio=_NU,
         density_kg_m3=_SILICONE_DENSITY,
-        tensile_strength_pa=_UNKNOWN,
-        elongation_at_break=_UNKNOWN,
+        tensile_strength_pa=Quantity(500 * 6894.757, "not given in SPEC 1.2; Smooth-On Dragon Skin 30 bulletin, 500 psi (ASTM D412)"),
+        elongation_at_break=Quantity(3.64, "not given in SPEC 1.2; Smooth-On Dragon Skin 30 bulletin, 364 % (ASTM D412)"),
         relative_ml_peak=_ML_LOWER,
     ),
     "EF30": Material(

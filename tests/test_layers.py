@@ -8,7 +8,7 @@ Layers, lowest first:
 1. stages: the physics and the detector, each stage declared next to its code (``fem``,
    ``mlsim.emission``, ``mlsim.render``, ``mlsim.camera``, ``dllm``, ``classifiers``), and the sensor
    kinds that register them (``mlsim.ml_rod_array``);
-2. orchestration: the planner and cache, the command line, datasets, accuracy and detector studies.
+2. orchestration: the planner and cache, the command line, datasets, sweeps, accuracy and detector studies.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("mlsim", "fem", "dllm", "classifiers", "other_sensors")
 BASE = ("mlsim", "mlsim.errors", "mlsim.io", "mlsim.stage", "mlsim.scene", "mlsim.materials", "mlsim.spectra", "mlsim.plots",
         "fem.materials", "fem.materials.linear_elastic", "fem.materials.neo_hookean", "fem.materials.shore_hardness")
-ORCHESTRATION = ("mlsim.pipeline", "mlsim.cli", "mlsim.__main__", "mlsim.dataset", "mlsim.accuracy", "mlsim.render.accuracy", "dllm.direction",
+ORCHESTRATION = ("mlsim.pipeline", "mlsim.cli", "mlsim.__main__", "mlsim.dataset", "mlsim.sweep", "mlsim.accuracy", "mlsim.render.accuracy", "dllm.direction",
                  "dllm.ambient_study", "classifiers.cli")
 
 

@@ -50,9 +50,14 @@ def rows(records: list[dict], varies, load_names: list[str]) -> list[dict]:
             row[f"{name}_sf_stress"] = r.get("safety_factor_stress")
             row[f"{name}_sf_strain"] = r.get("safety_factor_strain")
             row[f"{name}_tears"] = r.get("tears")
+            row[f"{name}_force_err_est"] = r.get("solve_error_estimate")  # the linear tiers' own estimate (fem.quasistatic)
+            row["tiers"] = f"{r.get('solve_tier')}/{r.get('render_tier', '-')}"
             sf = r.get("safety_factor_strain") or r.get("safety_factor_stress")
             if _num(sf):
                 risks.append(1.0 / sf)
+            elif "peak_principal_strain_pct" in r:
+                reasons.append(f"{name}: no safety factor: the materials table gives {r.get('material_of_peak')} no elongation at break "
+                               "or tensile strength (SPEC 1.2: not given; add them under [materials.NAME])")
         row["tear_risk"] = max(risks) if risks else None
         row["tears"] = any(bool(row.get(f"{n}_tears")) for n in load_names)
         sep = rec.get("separation")
@@ -123,9 +128,12 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
         md += ["", "## What failed", ""] + [f"- {label}: {why}" for label, why in failures]
     md += ["", "Photons: over the episode, every rod. DN: the brightest rod's mean 8-bit grey level above its darkest frame. "
            "Strain: peak principal (small-strain) strain; sf: safety factor (elongation at break / peak strain; "
-           "tensile strength / peak stress); tear_risk: 1 / the smallest safety factor over the loads. min_valley: the "
+           "tensile strength / peak stress); tear_risk: 1 / the smallest safety factor over the loads; tears: a safety factor below 1 "
+           "under any load (the press is the design load). min_valley: the "
            "calibration frame's darkest gap between neighbouring disks (0 merged, 1 black). beam_strain_per_n: SPEC 1.3's "
-           "cantilever sensitivity 4 L / (pi r^3 E)."]
+           "cantilever sensitivity 4 L / (pi r^3 E). tiers: solve/render; force_err_est: the linear tiers' own estimate of "
+           "their per-rod contact force error from the rods' bending (fem.quasistatic; none with second-order rod kinematics, "
+           "which carry that term); the deformed render tier is within 1 % per rod of path tracing (`mlsim accuracy --stage render`)."]
     files.append(out / "sweep.md")
     atomic_bytes(files[-1], ("\n".join(md) + "\n").encode())
     files += _plots(out, table, varies, load_names)
@@ -147,8 +155,12 @@ def _plots(out: Path, table: list[dict], varies, load_names) -> list[Path]:
         numeric = all(_num(x) is not None for x in xs)
         if not metrics:
             break
-        fig, axes = plt.subplots(1, len(metrics), figsize=(3.2 * len(metrics), 3.0), squeeze=False)
-        for ax, m in zip(axes[0], metrics):
+        ncols = min(4, len(metrics))
+        nrows = -(-len(metrics) // ncols)
+        fig, axes = plt.subplots(nrows, ncols, figsize=(3.4 * ncols, 2.8 * nrows), squeeze=False)
+        for ax in axes.ravel()[len(metrics):]:
+            ax.set_visible(False)
+        for ax, m in zip(axes.ravel(), metrics):
             pts = [(x, row.get(m)) for x, row in zip(xs, table) if _num(row.get(m)) is not None]
             if numeric:
                 pts.sort()
@@ -165,7 +177,9 @@ def _plots(out: Path, table: list[dict], varies, load_names) -> list[Path]:
         fig.savefig(path, dpi=100)
         plt.close(fig)
         files.append(path)
-    bright = next((f"{n}_photons" for n in load_names if any(_num(r.get(f"{n}_photons")) is not None for r in table)), None)
+    # brightness: the swipe's photons where there is a swipe (SPEC 1.5's brightness test), else the first load's
+    ordered = sorted(load_names, key=lambda n: n != "swipe")
+    bright = next((f"{n}_photons" for n in ordered if any(_num(r.get(f"{n}_photons")) is not None for r in table)), None)
     pts = [(row["tear_risk"], row[bright], row["label"]) for row in table
            if bright and _num(row.get("tear_risk")) is not None and _num(row.get(bright)) is not None]
     if pts:
