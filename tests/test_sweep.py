@@ -224,3 +224,21 @@ def test_killed_sweep_resumes_without_rerunning_finished_variants(tmp_path, cach
     for k, data in before.items():  # the finished variants' records are untouched
         assert (out / "variants" / f"{k}.json").read_bytes() == data
     assert len(json.loads((out / "summary.json").read_text())["files"]) >= 3
+
+
+def test_a_variant_whose_stages_are_all_cached_still_reports_them(tmp_path, cache):
+    """A second sweep of the same variant into a new folder loads every stage, the solve too (the
+    planner leaves out the stages a cached camera result does not need unless they are asked for),
+    and gives the same figures."""
+    base = load_scene(TINY).with_values({"fidelity.render.transport_spp": 8})
+    kw = dict(loads=[read_load(TINY)], wanted=("brightness", "tear"), cache_dir=cache.root, progress=False, log=lambda m: None)
+    varies = parse_vary(["sensor.rod.height_mm=9"])
+    sweep(base, varies, tmp_path / "a", **kw)
+    sweep(base, varies, tmp_path / "b", **kw)
+    (a,), (b,) = stored_records(tmp_path / "a").values(), stored_records(tmp_path / "b").values()
+    ra, rb = a["loads"]["mavig_tiny"], b["loads"]["mavig_tiny"]
+    assert rb["ok"], rb.get("reason")
+    assert set(rb["actions"].values()) <= {"load", "run"} and rb["actions"]["camera"] == "load" and rb["actions"]["solve"] == "load"
+    assert rb["total_photons"] == ra["total_photons"] > 0
+    assert rb["peak_principal_strain_pct"] == ra["peak_principal_strain_pct"]
+    assert rb["photons_per_newton"] == pytest.approx(rb["total_photons"] / rb["peak_normal_force_n"])

@@ -73,6 +73,8 @@ def rows(records: list[dict], varies, load_names: list[str]) -> list[dict]:
         if d is not None:
             if d.get("ok"):
                 row["direction_mae_deg"] = d.get("mean_abs_error_deg")
+                if d.get("without_events"):
+                    reasons.append(f"direction: no DLLM event at {', '.join(f'{a:g}' for a in d['without_events'])} deg")
             else:
                 reasons.append(f"direction: {d['reason']}")
         row["beam_strain_per_n"] = rec.get("beam_strain_per_n")
@@ -93,7 +95,7 @@ def pareto_front(points: list[tuple[float, float]]) -> list[bool]:
 
 
 def _fmt(value) -> str:
-    if value is None:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "-"
     if isinstance(value, bool):
         return "yes" if value else "no"
@@ -106,9 +108,14 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
     """The CSV, Markdown table and plots of a sweep's records (module docstring); returns the files."""
     load_names = [ld["name"] for ld in meta["loads"]]
     table = rows(records, varies, load_names)
-    columns: list[str] = []
-    for row in table:  # the columns some variant has a value in
-        columns += [k for k, v in row.items() if k not in columns and v not in (None, "")]
+    # a fixed order (the varied fields, each load's figures in load order, the rest), of the columns
+    # some variant has a value in
+    per_load = ("photons", "peak_rod_dn", "photons_per_n", "force_n", "stress_kpa", "strain_pct", "sf_stress", "sf_strain", "tears",
+                "force_err_est")
+    order = ["variant", "label", *(v.name for v in varies), *(f"{n}_{m}" for n in load_names for m in per_load), "tear_risk", "tears",
+             "hough_ok", "min_valley", "rim_gap_px", "hough_offset_px", "direction_mae_deg", "beam_strain_per_n", "tiers", "seconds", "failed"]
+    present = {k for row in table for k, v in row.items() if v not in (None, "")}
+    columns = [c for c in order if c in present] + sorted(present - set(order))
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore")
     w.writeheader()

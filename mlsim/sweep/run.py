@@ -97,7 +97,8 @@ def _load_metrics(scene, load: Load, cache_dir, wanted) -> dict:
     from mlsim.render import rod_disks_px
     from mlsim.render.optics import disk_masks
 
-    outputs = ("camera",) if "brightness" in wanted else ("solve",)
+    # the solve asked for by name: a cached camera result alone would leave it out of the plan
+    outputs = ("solve", "camera") if "brightness" in wanted else ("solve",)
     s = load.apply(scene, outputs)
     res = _run(s, cache_dir, outputs)
     ep = res.results["solve"]
