@@ -47,14 +47,17 @@ def project_through_interfaces(vertices_mm, inv_length, r2_step, z_step, pixel_m
 
 
 @njit(cache=True)
-def _rasterise_band(uv, depth, faces, value, per_side, orientation, width_samples, r0, r1, nearest, seen, face_ids):
-    """The triangles ``face_ids`` (ascending), into sample rows r0 .. r1 - 1: where a triangle faces
-    the camera, covers a sample and is nearer (smaller ``depth``, interpolated) than what the sample
-    holds, the sample takes the triangle's ``value`` interpolated there. ``nearest``, ``seen``:
-    ((r1 - r0) x width_samples,) float32, the band's depth and value buffers. Barycentric weights are
-    those of the image-space triangle (the projection is smooth on a triangle's scale)."""
+def _rasterise_band(uv, depth, faces, value, per_side, orientation, width_samples, r0, r1, nearest, seen, rows_lo, rows_hi):
+    """Every triangle that faces the camera, into sample rows r0 .. r1 - 1: where a triangle covers a
+    sample and is nearer (smaller ``depth``, interpolated) than what the sample holds, the sample
+    takes the triangle's ``value`` interpolated there. ``nearest``, ``seen``: ((r1 - r0) x
+    width_samples,) float32, the band's depth and value buffers; rows_lo, rows_hi (K,): each
+    triangle's span of sample rows (only those that reach the band are read). Barycentric weights
+    are those of the image-space triangle (the projection is smooth on a triangle's scale)."""
     k = per_side
-    for f in face_ids:
+    for f in range(faces.shape[0]):
+        if rows_hi[f] < r0 or rows_lo[f] > r1 - 1:
+            continue
         i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
         # sample-grid coordinates: sample (sx, sy) sits at pixel ((sx + 0.5) / k, (sy + 0.5) / k)
         y0 = uv[i0, 1] * k - 0.5
@@ -62,7 +65,8 @@ def _rasterise_band(uv, depth, faces, value, per_side, orientation, width_sample
         y2 = uv[i2, 1] * k - 0.5
         y_lo = min(y0, min(y1, y2))
         y_hi = max(y0, max(y1, y2))
-        if y_hi < r0 or y_lo > r1 - 1:
+        sy_lo, sy_hi = max(r0, int(np.ceil(y_lo))), min(r1 - 1, int(np.floor(y_hi)))
+        if sy_lo > sy_hi:  # outside the band, or between two sample rows (most of the far side's slivers)
             continue
         x0 = uv[i0, 0] * k - 0.5
         x1 = uv[i1, 0] * k - 0.5
@@ -85,7 +89,7 @@ def _rasterise_band(uv, depth, faces, value, per_side, orientation, width_sample
         v_min, v_max = min(v0, min(v1, v2)), max(v0, max(v1, v2))
         x_lo = max(0.0, min(x0, min(x1, x2)))
         x_hi = min(width_samples - 1.0, max(x0, max(x1, x2)))
-        for sy in range(max(r0, int(np.ceil(y_lo))), min(r1 - 1, int(np.floor(y_hi))) + 1):
+        for sy in range(sy_lo, sy_hi + 1):
             # the columns where all three weights are >= -EDGE_EPS; an edge along the rows (B = 0)
             # bounds only rows, and the bounding box's rows are inside it
             lo, hi = x_lo, x_hi
@@ -129,36 +133,14 @@ def _rasterise_frame(uv, depth, faces, value, per_side, orientation, height_px, 
     their buffers stay in the core's cache)."""
     k = per_side
     width_samples = width_px * k
+    # each triangle's rows, once: a band then skips the triangles outside it without reading them
+    rows_lo = np.empty(faces.shape[0], np.float32)
+    rows_hi = np.empty(faces.shape[0], np.float32)
+    for f in range(faces.shape[0]):
+        a, b, c = uv[faces[f, 0], 1], uv[faces[f, 1], 1], uv[faces[f, 2], 1]
+        rows_lo[f] = min(a, min(b, c)) * k - 0.5
+        rows_hi[f] = max(a, max(b, c)) * k - 0.5
     rows = ((height_px + n_bands - 1) // n_bands) * k
-    n_rows = height_px * k
-    # each camera-facing triangle that reaches a sample row, listed once under each band it reaches
-    # (in ascending order, as a pass over all of them would take them): a band reads only its own,
-    # and the back faces (about half the sheet) and the triangles between sample rows are read once
-    n_faces = faces.shape[0]
-    first = np.full(n_faces, -1, np.int64)
-    last = np.full(n_faces, -2, np.int64)
-    start = np.zeros(n_bands + 1, np.int64)
-    for f in range(n_faces):
-        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        y0, y1, y2 = uv[i0, 1] * k - 0.5, uv[i1, 1] * k - 0.5, uv[i2, 1] * k - 0.5
-        x0, x1, x2 = uv[i0, 0] * k - 0.5, uv[i1, 0] * k - 0.5, uv[i2, 0] * k - 0.5
-        if ((x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)) * orientation <= 0.0:
-            continue  # seen from behind, or edge-on: _rasterise_band would skip it
-        sy_lo = max(0, int(np.ceil(min(y0, min(y1, y2)))))
-        sy_hi = min(n_rows - 1, int(np.floor(max(y0, max(y1, y2)))))
-        if sy_lo > sy_hi:
-            continue
-        first[f], last[f] = sy_lo // rows, sy_hi // rows
-        for b in range(first[f], last[f] + 1):
-            start[b + 1] += 1
-    for b in range(n_bands):
-        start[b + 1] += start[b]
-    listing = np.empty(start[n_bands], np.int64)
-    fill = start.copy()
-    for f in range(n_faces):
-        for b in range(first[f], last[f] + 1):
-            listing[fill[b]] = f
-            fill[b] += 1
     nearest = np.empty(rows * width_samples, dtype=np.float32)
     seen = np.empty(rows * width_samples, dtype=np.float32)
     for b in range(n_bands):
@@ -168,7 +150,7 @@ def _rasterise_frame(uv, depth, faces, value, per_side, orientation, height_px, 
             continue
         nearest[:] = np.inf
         seen[:] = 0.0
-        _rasterise_band(uv, depth, faces, value, k, orientation, width_samples, r0, r1, nearest, seen, listing[start[b]:start[b + 1]])
+        _rasterise_band(uv, depth, faces, value, k, orientation, width_samples, r0, r1, nearest, seen, rows_lo, rows_hi)
         for py in range(r0 // k, r1 // k):
             for j in range(k):
                 sy = py * k + j
