@@ -3,11 +3,7 @@
 from __future__ import annotations
 
 import math
-import os
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +15,7 @@ from mlsim.dataset.reader import EpisodeDataset, load_episodes
 from mlsim.dataset.spec import load_dataset_spec
 from mlsim.interactions import ACTIONS
 from mlsim.scene import SceneError
+from process_helpers import kill_when
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = dict(samples_per_action=4, people=2)  # the module's dataset: 8 actions x 4 samples by 2 people
@@ -155,19 +152,7 @@ def test_kill_halfway_then_resume_completes_without_duplicates(small, tmp_path):
     spec_path = write_spec(tmp_path, **SMALL)
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "mlsim.cli", "dataset", str(spec_path), "--out", str(out), "--workers", "2", "--quiet"]
-    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 240
-    try:
-        while len(store.complete_episodes(out)) < 4:
-            if proc.poll() is not None:
-                pytest.fail(f"the run ended before it could be killed: {proc.stderr.read().decode()[-2000:]}")
-            if time.monotonic() > deadline:
-                pytest.fail("no 4 episodes within 240 s")
-            time.sleep(0.05)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
+    kill_when(cmd, lambda: len(store.complete_episodes(out)) >= 4, what="4 episodes")
     n_killed = len(store.complete_episodes(out))
     assert 4 <= n_killed < N_SMALL
     spec, base = load_dataset_spec(spec_path)

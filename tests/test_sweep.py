@@ -3,11 +3,7 @@
 from __future__ import annotations
 
 import json
-import os
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -19,6 +15,7 @@ from mlsim.sweep import metrics
 from mlsim.sweep.report import pareto_front
 from mlsim.sweep.run import read_load, stored_records, sweep
 from mlsim.sweep.variants import parse_vary, variants
+from process_helpers import kill_when
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "scenes" / "mavig_tiny.toml"
@@ -204,19 +201,7 @@ def test_killed_sweep_resumes_without_rerunning_finished_variants(tmp_path, cach
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "mlsim.cli", "sweep", str(TINY), "--load", str(TINY), "--vary", "sensor.materials.core=SC37,PDMS,DS30",
            "--metrics", "tear", "--out", str(out), "--cache", str(cache.root), "--quiet"]
-    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 240
-    try:
-        while not stored_records(out):
-            if proc.poll() is not None:
-                pytest.fail(f"the sweep ended before it could be killed: {proc.stderr.read().decode()[-2000:]}")
-            if time.monotonic() > deadline:
-                pytest.fail("no variant within 240 s")
-            time.sleep(0.05)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
+    kill_when(cmd, lambda: bool(stored_records(out)), what="variant")
     before = {k: (tmp_path / "killed" / "variants" / f"{k}.json").read_bytes() for k in stored_records(out)}
     assert 1 <= len(before) < 3
     summary = _tiny_sweep(out, cache.root, values="SC37,PDMS,DS30")
