@@ -19,6 +19,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def pytest_configure(config):
+    # pytest-xdist's workers (make test: -n 2) share the cache their controller made and seeded: a
+    # precompute one worker made (a transport matrix, the reduced tier's) is the other's too
+    if os.environ.get("PYTEST_XDIST_WORKER") and os.environ.get("MLSIM_CACHE_DIR"):
+        return
     # Never touch the user's cache from tests; runs inside the session share this one.
     if "MLSIM_CACHE_DIR" not in os.environ or not os.environ.get("MLSIM_TEST_KEEP_CACHE"):
         import tempfile

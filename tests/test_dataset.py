@@ -148,18 +148,20 @@ def test_torch_dataset_reads_what_was_written(small):
 
 def test_kill_halfway_then_resume_completes_without_duplicates(small, tmp_path):
     """SIGKILL the CLI mid-run (2 workers), rerun: every episode exactly once, whole, and equal to an
-    uninterrupted run's (byte for byte: same spec and seed, same features)."""
-    spec_path = write_spec(tmp_path, **SMALL)
+    uninterrupted run's (byte for byte: same spec and seed, same features). Half the module's
+    dataset (2 samples per action): its episodes are the module's first two of each action."""
+    spec_path = write_spec(tmp_path, samples_per_action=2, people=2)
+    n_half = N_SMALL // 2
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "mlsim.cli", "dataset", str(spec_path), "--out", str(out), "--workers", "2", "--quiet"]
     kill_when(cmd, lambda: len(store.complete_episodes(out)) >= 4, what="4 episodes")
     n_killed = len(store.complete_episodes(out))
-    assert 4 <= n_killed < N_SMALL
+    assert 4 <= n_killed < n_half
     spec, base = load_dataset_spec(spec_path)
     summary = gen.generate(spec, base, out, workers=2, progress=False, log=lambda m: None)
-    assert summary["complete"] and summary["episodes_run_now"] == N_SMALL - n_killed
+    assert summary["complete"] and summary["episodes_run_now"] == n_half - n_killed
     ids = store.complete_episodes(out)
-    assert len(ids) == N_SMALL and not any((out / ".partial").iterdir())
+    assert len(ids) == n_half and not any((out / ".partial").iterdir())
     # against the uninterrupted run of the same spec (the module's fixture): byte-identical features
     _, _, reference = small
     for e in sorted(ids):
