@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+import pytest
 import scipy.sparse as sp
 
 from mlsim.render.kernels import csr_times_dense
@@ -61,3 +62,27 @@ def test_the_rasteriser_reads_vertex_values_at_samples_on_vertices_and_never_goe
     # seen from behind (the other winding), nothing
     assert rasterise_direct(uv[None], np.ones((1, n * n), np.float32), faces[:, ::-1].copy(), value[None], 1, orientation, n, n,
                             throughput, 4).max() == 0.0
+
+
+def test_the_largest_displacement_and_the_in_place_product_are_numpys():
+    """largest_displacement is the largest vertex distance per frame (zero at rest);
+    TransportMatrix.apply(add_to=) adds the product in place, bit for bit, and checks the buffer."""
+    from mlsim.render.kernels import largest_displacement
+    from mlsim.render.transport import TransportMatrix
+
+    rng = np.random.default_rng(8)
+    V = rng.normal(size=(4, 50, 3))
+    rest = rng.normal(size=(50, 3))
+    np.testing.assert_allclose(largest_displacement(V, rest), np.linalg.norm(V - rest, axis=2).max(axis=1), rtol=1e-15)
+    assert np.all(largest_displacement(np.broadcast_to(rest, (2, 50, 3)).copy(), rest) == 0.0)
+    A = sp.random(12 * 10, 30, density=0.1, random_state=2, format="csr", dtype=np.float32)
+    T = TransportMatrix(A, 12, 10, 16, 0.0, 0.0)
+    E = rng.random((3, 30)).astype(np.float32)
+    base = rng.random((3, 12, 10)).astype(np.float32)
+    into = base.copy()
+    assert T.apply(E, add_to=into) is into
+    np.testing.assert_array_equal(into, base + T.apply(E))
+    assert T.apply(E).flags.c_contiguous
+    np.testing.assert_allclose(T.apply(E[0]), (A @ E[0]).reshape(12, 10), rtol=1e-5)
+    with pytest.raises(ValueError, match="add_to"):
+        T.apply(E, add_to=np.zeros((3, 12, 10)))  # float64

@@ -151,18 +151,26 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
         if vertices_m.shape != (F, sensor_scene.n_vertices, 3):
             raise ValueError(f"vertices_m of shape {vertices_m.shape}: must be ({F}, {sensor_scene.n_vertices}, 3)")
         same[1:] &= np.all(vertices_m[1:] == vertices_m[:-1], axis=(1, 2))
-        moved = vertices_m - sensor_scene.rest_vertices_m[None]
-        moved_m = np.sqrt(np.einsum("fnd,fnd->fn", moved, moved).max(axis=1))
-        del moved
+        from mlsim.render.kernels import largest_displacement
+
+        moved_m = largest_displacement(vertices_m, np.asarray(sensor_scene.rest_vertices_m, dtype=float))
     todo = np.flatnonzero(lit & ~same)
+    every = len(todo) == F  # then the frames' arrays go in whole, not copied by index
     traced = todo if tier == "path" else np.array([], int)
     if tier == "deformed":
         _check_deformed(sensor_scene, transport, raster)
         t0 = time.perf_counter()
         if len(todo):
-            at = vertices_m[todo] if vertices_m is not None else np.broadcast_to(sensor_scene.rest_vertices_m, (len(todo),) + sensor_scene.rest_vertices_m.shape)
-            out[todo] = raster.images(at, e[todo])
-            out[todo] += transport.apply(e[todo])
+            if vertices_m is None:
+                at = np.broadcast_to(sensor_scene.rest_vertices_m, (len(todo),) + sensor_scene.rest_vertices_m.shape)
+            else:
+                at = vertices_m if every else vertices_m[todo]
+            e_todo = e if every else e[todo]
+            images = transport.apply(e_todo, add_to=raster.images(at, e_todo))
+            if every:
+                out = images
+            else:
+                out[todo] = images
         seconds[todo] = (time.perf_counter() - t0) / max(len(todo), 1)
     if tier == "transport":
         if transport is None:

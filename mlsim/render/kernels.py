@@ -189,3 +189,22 @@ def csr_times_dense(indptr, indices, data, dense, out):
             j = indices[p]
             for f in range(n_cols):
                 out[i, f] += a * dense[j, f]
+
+
+
+@njit(parallel=True, cache=True)
+def largest_displacement(vertices, rest):
+    """(F,) the largest distance of any vertex of vertices (F, N, 3) from its rest position rest (N, 3):
+    what the render tiers log per frame. numpy's difference and einsum took 0.3 ms per frame of the
+    default demo (30 k vertices, 2 cores), a fifth of the deformed tier's time outside its two parts."""
+    n_frames, n = vertices.shape[0], vertices.shape[1]
+    out = np.zeros(n_frames)
+    for f in prange(n_frames):
+        worst = 0.0
+        for i in range(n):
+            dx = vertices[f, i, 0] - rest[i, 0]
+            dy = vertices[f, i, 1] - rest[i, 1]
+            dz = vertices[f, i, 2] - rest[i, 2]
+            worst = max(worst, dx * dx + dy * dy + dz * dz)
+        out[f] = np.sqrt(worst)
+    return out
