@@ -50,6 +50,7 @@ class SolveSettings:
     backend: str = "auto"
     path_margin_m: float = 1.0e-3  # linear tier: contact points within this of the swept indenter
     small_strain_limit: float = 0.5  # refuse a step where a contact point moves more than this x rod height
+    buckling_limit: float = 0.5  # second-order kinematics: refuse a rod's axial load beyond this x its Euler load
     contact_solver: str = "admm"  # "admm" (fem.contact_admm) | "newton" (fem.condensed._newton_points)
     contact_max_iterations: int = 200  # ADMM iterations per linearisation
     nonlinear_newton: str = "condensed"  # the nonlinear tier's step solver: "condensed" | "penalty" (fem.finite_strain)
@@ -65,7 +66,7 @@ class SolveSettings:
             element = "P2P1" if (f.formulation == "mixed" or (f.formulation == "auto" and nu_max >= 0.45)) else "P2"
         return cls(tier=f.tier, element=element, substeps=f.substeps, contact_band_m=f.contact_band_mm * 1e-3,
                    penalty_factor=f.penalty_factor, patches_per_tip=f.patches_per_tip, patches_per_side=f.patches_per_side,
-                   gravity=f.gravity, small_strain_limit=f.small_strain_limit, contact_solver=f.contact_solver,
+                   gravity=f.gravity, small_strain_limit=f.small_strain_limit, buckling_limit=f.buckling_limit, contact_solver=f.contact_solver,
                    contact_max_iterations=f.contact_max_iterations, rod_kinematics=f.rod_kinematics,
                    nonlinear_newton=f.nonlinear_newton)
 

@@ -191,6 +191,28 @@ def second_order_points(theta: np.ndarray, sections: RodSections, X: np.ndarray,
     return q
 
 
+def euler_load_n(radius_m: float, height_m: float, young_pa, thickness_m) -> float:
+    """Euler's buckling load pi^2 EI / (4 L^2) N of a rod clamped at its base with its tip free to move
+    sideways (the lowest of a rod a sliding probe drags), EI of its layered section: ``young_pa``
+    (k,) Pa of the layers outside in, the last the core, and ``thickness_m`` (k - 1,) of all but the
+    core (the layers coat the rods' sides, :mod:`fem.geometry`).
+
+    The bound of the P-delta model: its rod's sideways stiffness 3 EI / L^3 - P / L falls to zero at
+    P = 3 EI / L^2 = 1.22 x this load, where the real rod has already buckled. At half of it the
+    true beam-column amplification of a sideways deflection is 1 / (1 - 0.5) = 2.0 and the model's
+    1 / (1 - 0.5 pi^2 / 12) = 1.70 (15 % short), beyond it the gap grows without bound
+    (Timoshenko and Gere, Theory of Elastic Stability, 2nd ed., sections 1.3 and 2.1)."""
+    E = np.asarray(young_pa, dtype=float)
+    t = np.asarray(thickness_m, dtype=float)
+    if len(t) != len(E) - 1 or np.any(t < 0) or np.any(E <= 0) or radius_m <= 0 or height_m <= 0:
+        raise ValueError(f"euler_load_n: radius {radius_m} m, height {height_m} m, moduli {E} Pa and thicknesses {t} m: "
+                         "need positive sizes and moduli and one thickness per layer outside the core")
+    outer = radius_m - np.concatenate([[0.0], np.cumsum(t)])  # each layer's outer radius, outside in
+    inner = np.append(outer[1:], 0.0).clip(min=0.0)
+    EI = float(np.sum(E * np.pi / 4.0 * (outer.clip(min=0.0) ** 4 - inner ** 4)))
+    return np.pi ** 2 * EI / (4.0 * height_m ** 2)
+
+
 def pdelta_load(f: np.ndarray, tip_h: np.ndarray, point_rod: np.ndarray, length_m: float) -> np.ndarray:
     """The P-delta equivalent load (m, 3) N on the points: per rod j, -F_z d_h / L with F_z = sum of the
     vertical forces f (m, 3) N on its points and d_h = tip_h[j] (2,) m, where F_z < 0 (compression),

@@ -216,3 +216,35 @@ def test_tips_nanometres_apart_are_one_tip_face(tiny_mesh):
     points[on_tip_1, 2] += 1.3e-9
     sec = rk.rod_sections(points, mesh.tets, mesh.tet_rod, [0, 1], base_z, tip_z + 1.3e-9)
     assert sec.n_slabs == rk.N_SLABS and len(sec.rods) == 2
+
+
+def test_the_euler_load_of_a_layered_rod():
+    """pi^2 EI / (4 L^2): a homogeneous rod's pi^3 E r^4 / (16 L^2); layers of the core's modulus change
+    nothing; a stiffer skin adds its annulus' share; bad sizes are refused."""
+    r, L, E = 2.5e-3, 9e-3, 1.51e6
+    homogeneous = np.pi ** 3 * E * r ** 4 / (16 * L ** 2)
+    assert rk.euler_load_n(r, L, [E], []) == pytest.approx(homogeneous, rel=1e-12)
+    assert rk.euler_load_n(r, L, [E, E, E], [0.3e-3, 0.5e-3]) == pytest.approx(homogeneous, rel=1e-12)
+    skin = rk.euler_load_n(r, L, [10 * E, E], [0.3e-3])
+    annulus = np.pi ** 2 * 9 * E * np.pi / 4 * (r ** 4 - (r - 0.3e-3) ** 4) / (4 * L ** 2)
+    assert skin == pytest.approx(homogeneous + annulus, rel=1e-12)
+    assert rk.euler_load_n(r, 2 * L, [E], []) == pytest.approx(homogeneous / 4, rel=1e-12)
+    with pytest.raises(ValueError, match="one thickness per layer"):
+        rk.euler_load_n(r, L, [E, E], [])
+
+
+def test_second_order_kinematics_refuse_a_rod_near_buckling(tiny_mesh):
+    """The check counts each rod's axial contact load against its Euler load, and the tiny scene's
+    slide (second order) is refused with the limit's name when the limit is below what its rods carry."""
+    f = np.array([[0.0, 0.1, -0.2], [0.05, 0.0, -0.4], [0.0, 0.0, -5.0], [0.0, 0.0, 0.1]])
+    rod = np.array([1, 1, -1, 0])  # rod 1 carries 0.6 N; the base's 5 N is no rod's
+    qs._check_buckling(f, rod, 2, 1.0, 0.61, "step 3", "linear")
+    with pytest.raises(qs.SolverError, match=r"step 3: rod 1 carries 0.6 N along its axis, 0.60 x its Euler buckling load"):
+        qs._check_buckling(f, rod, 2, 1.0, 0.59, "step 3", "linear")
+    scene, _, mesh, _ = tiny_mesh
+    second = scene.with_values({"fidelity.solve.rod_kinematics": "second_order"})
+    ep = qs.run_episode(second, mesh)
+    carried = (-ep.rod_force_n[..., 2]).max() / qs._euler_load_n(second)
+    assert 0.0 < carried < 0.5  # the default limit lets the tiny slide through
+    with pytest.raises(qs.SolverError, match="fidelity.solve.buckling_limit"):
+        qs.run_episode(second.with_values({"fidelity.solve.buckling_limit": 0.5 * carried}), mesh)
