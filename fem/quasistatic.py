@@ -777,10 +777,11 @@ def _all_rod_sections(scene, mesh, tip_z_m: float) -> "rod_kinematics.RodSection
 
 def _euler_load_n(scene) -> float:
     """The sensor's rods' Euler buckling load N (fem.rod_kinematics.euler_load_n, the layers from the scene)."""
-    layers = scene.sensor.layers
+    from fem.geometry import RodArray
+
+    g = RodArray.from_sensor(scene.sensor)
     young = [scene.material(r).young_modulus_pa.value for r in ("absorber", "ml_layer", "core")]
-    return rod_kinematics.euler_load_n(0.5e-3 * scene.sensor.rod.diameter_mm, scene.sensor.rod.height_mm * 1e-3, young,
-                                       [layers.absorber_mm * 1e-3, layers.ml_mm * 1e-3])
+    return rod_kinematics.euler_load_n(g.rod_radius_m, g.rod_height_m, young, [g.absorber_m, g.ml_m])
 
 
 def _check_buckling(f: np.ndarray, rod: np.ndarray, n_rods: int, euler_n: float, limit: float, case: str, tier: str) -> None:

@@ -155,18 +155,17 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
 
         moved_m = largest_displacement(vertices_m, np.asarray(sensor_scene.rest_vertices_m, dtype=float))
     todo = np.flatnonzero(lit & ~same)
-    every = len(todo) == F  # then the frames' arrays go in whole, not copied by index
+    every = len(todo) == F
+    pick = slice(None) if every else todo  # every frame: the frames' arrays go in as views, not copied by index
     traced = todo if tier == "path" else np.array([], int)
     if tier == "deformed":
         _check_deformed(sensor_scene, transport, raster)
         t0 = time.perf_counter()
         if len(todo):
-            if vertices_m is None:
-                at = np.broadcast_to(sensor_scene.rest_vertices_m, (len(todo),) + sensor_scene.rest_vertices_m.shape)
-            else:
-                at = vertices_m if every else vertices_m[todo]
-            e_todo = e if every else e[todo]
-            images = transport.apply(e_todo, add_to=raster.images(at, e_todo))
+            rest = sensor_scene.rest_vertices_m
+            at = vertices_m[pick] if vertices_m is not None else np.broadcast_to(rest, (len(todo),) + rest.shape)
+            e_pick = e[pick]
+            images = transport.apply(e_pick, add_to=raster.images(at, e_pick))
             if every:
                 out = images
             else:

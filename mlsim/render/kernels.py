@@ -191,7 +191,6 @@ def csr_times_dense(indptr, indices, data, dense, out):
                 out[i, f] += a * dense[j, f]
 
 
-
 @njit(parallel=True, cache=True)
 def largest_displacement(vertices, rest):
     """(F,) the largest distance of any vertex of vertices (F, N, 3) from its rest position rest (N, 3):
