@@ -1,0 +1,84 @@
+"""The elastica: large deflection of a cantilever under an end load, and its Euler buckling load.
+
+A clamped inextensible Euler-Bernoulli rod of length L and bending stiffness EI carries a dead
+force P at its free end, perpendicular to the undeformed axis (the force keeps its direction as the
+rod bends). With theta0 the angle through which the tip turns and the load parameter
+
+    alpha = P L^2 / (E I),
+
+the exact solution is written with incomplete elliptic integrals of the first and second kind,
+F(phi, k) and E(phi, k), with modulus k = sqrt((1 + sin theta0) / 2) and
+phi1 = arcsin(1 / (k sqrt 2)) [BisshoppDrucker1945]_:
+
+    sqrt(alpha)      = F(pi/2, k) - F(phi1, k)                      (fixes theta0 for a given alpha)
+    delta / L        = 1 - 2 / sqrt(alpha) (E(pi/2, k) - E(phi1, k))  (tip deflection along P)
+    (L - Delta) / L  = sqrt(2 sin theta0 / alpha)                    (tip position along the axis)
+
+At small alpha, delta / L -> alpha / 3 (the linear cantilever). The rod buckles under an axial end
+load at P_E = pi^2 E I / (4 L^2) (clamped-free), lowered by shear to Engesser's
+P_E / (1 + P_E / (kappa G A)) [Engesser1891]_ ([TimoshenkoGere1961]_ sec. 2.17).
+
+This is the beam model the nonlinear tier is verified against (tests/test_nonlinear_large_deflection.py):
+it neglects axial stretch and shear in the deflection formulas (a slender rod), and the material is
+linear in moment against curvature (a neo-Hookean rod's moment deviates by about its peak strain
+squared).
+
+References
+----------
+.. [BisshoppDrucker1945] K. E. Bisshopp, D. C. Drucker, "Large deflection of cantilever beams",
+   Quarterly of Applied Mathematics 3 (1945) 272-275.
+.. [Engesser1891] F. Engesser, "Die Knickfestigkeit gerader Staebe", Zentralblatt der
+   Bauverwaltung 11 (1891) 483-486.
+.. [TimoshenkoGere1961] S. P. Timoshenko, J. M. Gere, "Theory of Elastic Stability", 2nd ed.,
+   McGraw-Hill (1961), sec. 2.7 (clamped-free column), 2.17 (shear).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import brentq
+from scipy.special import ellipeinc, ellipkinc
+
+__all__ = ["cantilever_tip", "euler_load_clamped_free_n", "engesser_load_n"]
+
+
+def _alpha_of_tip_angle(theta0: float) -> tuple[float, float, float]:
+    """(sqrt alpha, k^2, phi1) of the elastica whose tip angle is theta0 (rad, 0 < theta0 < pi/2)."""
+    k2 = 0.5 * (1.0 + math.sin(theta0))
+    phi1 = math.asin(min(1.0, 1.0 / math.sqrt(2.0 * k2)))
+    return float(ellipkinc(0.5 * math.pi, k2) - ellipkinc(phi1, k2)), k2, phi1
+
+
+def cantilever_tip(alpha: float) -> tuple[float, float, float]:
+    """The tip of a cantilever under a dead end load perpendicular to its axis.
+
+    alpha: P L^2 / (E I) >= 0. Returns (delta / L, (L - Delta) / L, theta0): the deflection along the
+    load, the tip's position along the undeformed axis (both over L), and the tip angle (rad).
+    """
+    if not (np.isfinite(alpha) and alpha >= 0.0):
+        raise ValueError(f"alpha = {alpha}: must be a finite P L^2 / EI >= 0")
+    if alpha == 0.0:
+        return 0.0, 1.0, 0.0
+    root = math.sqrt(alpha)
+    # sqrt(alpha) rises monotonically from 0 to infinity as theta0 goes from 0 to pi/2
+    hi = 0.5 * math.pi - 1e-12
+    theta0 = brentq(lambda t: _alpha_of_tip_angle(t)[0] - root, 1e-12, hi, xtol=1e-14, rtol=1e-14)
+    _, k2, phi1 = _alpha_of_tip_angle(theta0)
+    delta = 1.0 - 2.0 / root * (ellipeinc(0.5 * math.pi, k2) - ellipeinc(phi1, k2))
+    along = math.sqrt(2.0 * math.sin(theta0) / alpha)
+    return float(delta), float(along), float(theta0)
+
+
+def euler_load_clamped_free_n(bending_stiffness_n_m2: float, length_m: float) -> float:
+    """P_E = pi^2 E I / (4 L^2): the buckling load (N) of a column clamped at its base, free at its tip."""
+    return math.pi**2 * bending_stiffness_n_m2 / (4.0 * length_m**2)
+
+
+def engesser_load_n(bending_stiffness_n_m2: float, shear_stiffness_n: float, length_m: float) -> float:
+    """Engesser's shear-corrected buckling load P_E / (1 + P_E / (kappa G A)) (N), clamped-free.
+
+    shear_stiffness_n: kappa G A (N)."""
+    pe = euler_load_clamped_free_n(bending_stiffness_n_m2, length_m)
+    return pe / (1.0 + pe / shear_stiffness_n)
