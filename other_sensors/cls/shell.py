@@ -29,7 +29,7 @@ import numpy as np
 from other_sensors.cls.ltv import PairLayout, pair_voltages, planar_voltages, pose6_to_pose
 
 __all__ = ["Foam", "foam_stress", "pose_wrench", "pose_from_wrench", "trajectory", "trajectory6", "measure", "measure6",
-           "TRAJECTORIES",
+           "TRAJECTORIES", "digitise",
            "ADC_BITS", "ADC_RANGE_V"]
 
 # A choice: the foam's small-strain modulus (a soft polyurethane foam, ~30 kPa) and the strain at
@@ -188,10 +188,12 @@ def measure6(pose6, layout: PairLayout, noise_rms_mv: float, rng: np.random.Gene
              adc_range_v: float = ADC_RANGE_V):
     """:func:`measure` for 6-DoF poses (N, 6) = (x, y, z mm, rotation vector rad)."""
     clean = pair_voltages(*pose6_to_pose(pose6), layout)
-    return _digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v), clean
+    return digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v), clean
 
 
-def _digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v):
+def digitise(clean, noise_rms_mv, rng, adc_bits=ADC_BITS, adc_range_v=ADC_RANGE_V):
+    """Readings (shape of ``clean``) V: ``clean`` V plus white Gaussian noise of ``noise_rms_mv`` (``rng``),
+    quantised by an ``adc_bits`` ADC over 0..``adc_range_v`` and clipped at its rails."""
     noisy = clean + rng.normal(0.0, noise_rms_mv * 1e-3, size=clean.shape)
     lsb = adc_range_v / (2 ** adc_bits - 1)
     return np.clip(np.round(noisy / lsb), 0, 2 ** adc_bits - 1) * lsb
@@ -203,4 +205,4 @@ def measure(pose3, layout: PairLayout, noise_rms_mv: float, rng: np.random.Gener
     ``noise_rms_mv`` per sample and pair, quantised by an ``adc_bits`` ADC over 0..``adc_range_v``
     (clipped at its rails)."""
     clean = planar_voltages(pose3, layout)
-    return _digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v), clean
+    return digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v), clean
