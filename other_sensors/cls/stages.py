@@ -322,7 +322,8 @@ TRUTH_NOTES = {
     "optics": ("The simulated voltages come from optics (other_sensors.cls.optics: the LED's beam, the LTV's acceptance, the "
                "cavity's diffuse light) and the calibration fits the seven-coefficient law to them from motion-capture poses "
                "with their own noise: the errors hold the law's model error and the calibration's; run the same scene "
-               "without [sensor.optics] for the noise alone. Foam hysteresis is not modelled."),
+               "without [sensor.optics] for the noise alone. With sensor.foam.maxwell_kpa > 0 the true force holds the "
+               "foam's hysteresis (other_sensors.cls.foam_viscoelastic), which the elastic law's force misses."),
 }
 
 
@@ -386,7 +387,12 @@ def _estimate(scene, inputs, ctx):
     onset = sig["n_rest"]
     detected = np.flatnonzero(est.moving[onset:])
     latency_ms = float(detected[0] / sig["rate_hz"] * 1e3) if len(detected) and not np.allclose(sig["pose"][onset:], rest_pose) else None
-    wrench_true = pose_wrench(true, foam, layout)
+    if s.foam.maxwell_kpa > 0:  # the viscoelastic truth over the whole 2 kHz trajectory, read at the reference times
+        from other_sensors.cls.foam_viscoelastic import viscoelastic_wrench
+
+        wrench_true = viscoelastic_wrench(sig["pose"], sig["t_s"], foam, layout, s.foam.maxwell_kpa, s.foam.relaxation_s)[ref]
+    else:
+        wrench_true = pose_wrench(true, foam, layout)
     wrench_est = pose_wrench(got, foam, layout)
     ok = np.all(np.isfinite(got), axis=1)
     force_err = np.hypot(*(wrench_est[ok, :2] - wrench_true[ok, :2]).T)
