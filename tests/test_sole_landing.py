@@ -244,3 +244,11 @@ def test_bad_landings_are_refused_naming_the_field(tmp_path):
     low = sensor.model_copy(update={"landing": sensor.landing.model_copy(update={"swing_height_mm": 10.0})})
     with pytest.raises(ValueError, match="swing_height_mm"):
         landing_of_foot(low, low.foot, low.terrain)
+    # and at the door, before any stage runs: the 20 mm obstacles stand above a 10 mm swing
+    path = tmp_path / "low.toml"
+    path.write_text(text.replace("swing_height_mm = 50.0", "swing_height_mm = 10.0", 1))
+    with pytest.raises(SceneError, match=r"sensor\.landing\.swing_height_mm"):
+        load_scene(path)
+    from mlsim.cli import main
+
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 2

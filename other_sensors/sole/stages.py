@@ -67,6 +67,20 @@ def check(scene) -> list:
                                                      "section (x_mm, y_mm, yaw_deg, load_n)"))
     if "sole_obstacle_table" in scene.outputs and not sensor.obstacles:
         problems.append(("sensor.obstacles", [], "the output sole_obstacle_table needs one or more [[sensor.obstacles]] cases"))
+    if sensor.landing is not None and sensor.landing.speed_mm_s is None:
+        # the swing profile must reach down to where the foot first meets each terrain it lands on
+        from .landing import first_contact_height
+
+        cases = [(sensor.foot, sensor.terrain)] + [(c.foot, c.terrain) for c in sensor.obstacles]
+        layout, n = sensor.cells.layout(), sensor.cells.quadrature
+        try:
+            top = max(first_contact_height(layout, f.pose(), t.to_terrain(), n) for f, t in cases)
+        except ValueError:  # no terrain under a foot: the stages say so
+            top = 0.0
+        if 1e3 * top > sensor.landing.swing_height_mm:
+            problems.append(("sensor.landing.swing_height_mm", sensor.landing.swing_height_mm,
+                             f"the terrain meets the sole {1e3 * top:.1f} mm above the planned ground, above the swing's apex; "
+                             "raise swing_height_mm or give sensor.landing.speed_mm_s"))
     return problems
 
 
