@@ -276,7 +276,7 @@ def test_the_cls_kind_runs_through_mlsim_run_and_caches(tmp_path):
     lines = (out / "cls_errors.csv").read_text().splitlines()
     assert lines[0].split(",")[-2:] == ["spec3_position_mm", "spec3_angle_deg"] and len(lines) == 1 + len(table) == 6
     cells = [line.split(",") for line in lines[1:]]
-    assert [c[0] for c in cells] == ["0-2", "2-5", "5-10", ">= 10", "all"]
+    assert [c[0] for c in cells] == ["0-5", "5-10", "10-15", ">= 15", "all"]  # the seed's hardware table's ranges
     assert int(cells[-1][1]) == sum(int(c[1]) for c in cells[:-1]) == 48
     for c, row in zip(cells, table):
         assert c[-2:] == ["1-3", "< ~1"] and int(c[1]) == row["n"]
@@ -305,7 +305,7 @@ def test_the_cls_kind_runs_through_mlsim_run_and_caches(tmp_path):
     assert again["cls_estimate"]["action"] == "load" and again["cls_estimate"]["key"] == summary["cls_estimate"]["key"]
 
 
-def test_the_shipped_general_scene_runs_to_sub_0_1_mm_with_calibration_and_the_same_bytes_twice(tmp_path):
+def test_the_shipped_general_scene_runs_to_sub_0_1_mm_on_the_optical_truth_and_the_same_bytes_twice(tmp_path):
     scene = ROOT / "scenes" / "cls" / "general.toml"
     for run in ("a", "b"):  # separate caches: both runs compute everything
         assert main(["run", str(scene), "--out", str(tmp_path / run), "--cache", str(tmp_path / f"cache_{run}"), "--quiet"]) == 0
@@ -314,8 +314,23 @@ def test_the_shipped_general_scene_runs_to_sub_0_1_mm_with_calibration_and_the_s
     errors = json.loads((tmp_path / "a" / "cls_errors.json").read_text())
     assert errors["status_counts"]["converged"] + errors["status_counts"]["at_rest"] == 8000  # 4 s at 2 kHz, no failure
     assert errors["false_alarms"] == 0 and errors["latency_ms"] < 100
-    assert errors["force_rms_n"] < 0.1  # N, force through the foam law from the estimated pose
-    assert all(row["y_rms_mm"] < 0.05 and row["rx_rms_deg"] < 0.05 for row in errors["table"] if row["n"])
+    # the optical truth, the law fitted to it from motion-capture poses with 0.15 mm / 0.1 deg of noise:
+    # still well under SPEC 3's hardware figures (1-3 mm, ~1 deg)
+    assert all(row["position_rms_mm"] < 0.1 and row["rx_rms_deg"] < 0.05 for row in errors["table"] if row["n"])
+    # the force through the elastic law misses the viscoelastic foam's: its error is the hysteresis (the
+    # true force less the elastic law's at the true pose), the pose error adding under 0.3 N
+    from other_sensors.cls.shell import pose_wrench
+    from other_sensors.cls.stages import foam_of, layout_of
+
+    sensor = load_scene(scene).sensor
+    rows = np.loadtxt(tmp_path / "a" / "cls_estimate.csv", delimiter=",", skiprows=1)
+    true_pose = np.column_stack([rows[:, 1], rows[:, 2], np.radians(rows[:, 3])])
+    elastic = pose_wrench(true_pose, foam_of(sensor), layout_of(sensor))
+    hysteresis = np.sqrt(np.mean(np.sum((rows[:, 10:12] - elastic[:, :2]) ** 2, axis=1)))
+    from_pose = np.sqrt(np.mean(np.sum((rows[:, 13:15] - elastic[:, :2]) ** 2, axis=1)))
+    assert hysteresis > 1.0 and errors["force_rms_n"] == pytest.approx(hysteresis, rel=0.1) and from_pose < 0.3
+    assert errors["table"][3]["n"] > 0  # the general motion reaches the seed's > 15 mm range
+    assert "come from optics" in (tmp_path / "a" / "cls_errors.md").read_text()
 
 
 def test_the_schema_refuses_unknown_keys_and_inconsistent_values(tmp_path):

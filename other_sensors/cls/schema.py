@@ -14,7 +14,8 @@ from mlsim.scene import SpecModel
 
 from other_sensors.cls import ltv, shell
 
-__all__ = ["ClsSensor", "PairsSpec", "FoamSpec", "TrajectorySpec", "NoiseSpec", "CalibrationSpec", "EstimatorSpec", "check"]
+__all__ = ["ClsSensor", "PairsSpec", "FoamSpec", "TrajectorySpec", "NoiseSpec", "CalibrationSpec", "EstimatorSpec", "OpticsSpec",
+           "check"]
 
 
 _Model = SpecModel  # unknown keys refused, frozen, NaN and Inf refused (the scene's own rule)
@@ -48,6 +49,12 @@ class FoamSpec(_Model):
     young_kpa: float = Field(shell.FOAM_E0_KPA, gt=0)
     stiffening_strain: float = Field(shell.FOAM_STIFFENING_STRAIN, gt=0)
     pillar_y_mm: tuple[float, float, float] = shell.PILLAR_Y_MM
+    # The foam's viscoelastic arm (other_sensors.cls.foam_viscoelastic): a Maxwell arm's modulus and
+    # relaxation time beside the elastic law. 0 kPa: elastic (the estimator's law is the truth). The
+    # shipped scenes take 15 kPa (half of E0) and 0.2 s, a choice whose small-strain loss factor peaks
+    # at 0.20 near 0.65 Hz, inside polyurethane foams' 0.1-0.5 (Mills 2007)
+    maxwell_kpa: float = Field(0.0, ge=0, le=1e4)
+    relaxation_s: float = Field(0.2, gt=0, le=1e3)
 
 
 class TrajectorySpec(_Model):
@@ -85,6 +92,12 @@ class CalibrationSpec(_Model):
     v_max_v: float = Field(4.5, gt=0)
     # SPEC 3 calibrates the sensor/LED poses too; off: the coefficients only, at the designed poses
     fit_mounting: bool = True
+    # The motion capture's own noise on the calibration's measured poses (white, per axis; stream 6 of
+    # the seed). 0: exact reference poses. The shipped scenes take 0.15 mm and 0.1 deg, the order of an
+    # optical motion-capture system's static error (Merriaux et al., "A study of Vicon system
+    # positioning performance", Sensors 17, 2017: under 0.2 mm static).
+    mocap_noise_mm: float = Field(0.0, ge=0, le=10)
+    mocap_noise_deg: float = Field(0.0, ge=0, le=10)
 
 
 class EstimatorSpec(_Model):
@@ -105,6 +118,32 @@ class EstimatorSpec(_Model):
     motion_threshold_mv: float = Field(5.0, gt=0)
 
 
+class OpticsSpec(_Model):
+    """The optical truth (:mod:`other_sensors.cls.optics`): when given, the pairs' voltages come from
+    the LED's beam, the LTV's acceptance and the cavity's diffuse light instead of the estimator's
+    seven-coefficient law. SPEC 3 gives none of these; each default's source is beside it."""
+
+    # A 5 mm IR LED's half-intensity angle: +-30 deg (a common datasheet class, e.g. the wide-angle
+    # 940 nm parts; a choice, not the nominal law's c4)
+    half_angle_deg: float = Field(30.0, gt=0, lt=90)
+    # Diffuse reflectances at the LED's near infrared (choices): a green solder-mask base 0.1, a grey
+    # 3D-printed shell's inner surface 0.3, the grey open-cell foam's sides 0.6 (its scattering as a wall)
+    rho_base: float = Field(0.1, ge=0, lt=1)
+    rho_shell: float = Field(0.3, ge=0, lt=1)
+    rho_foam: float = Field(0.6, ge=0, lt=1)
+    # The cavity's footprint (a choice: the 130 mm the pillars span along y, 50 mm across)
+    length_mm: float = Field(130.0, gt=0, le=2000)
+    width_mm: float = Field(50.0, gt=0, le=2000)
+    # The LTV's dark output (a choice of a light-to-voltage converter's few millivolts)
+    dark_mv: float = Field(5.0, ge=0, le=1000)
+
+    def optics(self, pillar_width_mm: float):
+        from other_sensors.cls.optics import Optics
+
+        return Optics(self.half_angle_deg, self.rho_base, self.rho_shell, self.rho_foam, (self.length_mm, self.width_mm),
+                      pillar_width_mm, 3, self.dark_mv * 1e-3)
+
+
 class ClsSensor(_Model):
     """The compliant limb sensor of SPEC 3 (planar prototype: y, z, rx)."""
 
@@ -115,6 +154,7 @@ class ClsSensor(_Model):
     noise: NoiseSpec = NoiseSpec()
     calibration: CalibrationSpec = CalibrationSpec()
     estimator: EstimatorSpec = EstimatorSpec()
+    optics: OpticsSpec | None = None  # given: the optical truth (other_sensors.cls.optics); None: the law is the truth
 
 
 def check(scene) -> list:

@@ -28,8 +28,8 @@ import numpy as np
 
 from other_sensors.cls.ltv import PairLayout, pair_voltages, planar_voltages, pose6_to_pose
 
-__all__ = ["Foam", "foam_stress", "pose_wrench", "pose_from_wrench", "trajectory", "trajectory6", "measure", "measure6",
-           "TRAJECTORIES",
+__all__ = ["Foam", "foam_stress", "pillar_strains", "pose_wrench", "pose_from_wrench", "trajectory", "trajectory6", "measure", "measure6",
+           "TRAJECTORIES", "digitise",
            "ADC_BITS", "ADC_RANGE_V"]
 
 # A choice: the foam's small-strain modulus (a soft polyurethane foam, ~30 kPa) and the strain at
@@ -64,9 +64,10 @@ def foam_stress(strain, e0_kpa: float, stiffening_strain: float):
     return e0_kpa * strain * (1.0 + (strain / stiffening_strain) ** 2)
 
 
-def pose_wrench(pose3, foam: Foam, layout: PairLayout):
-    """The contact wrench (..., 3) = (F_y N, F_z N, M_x N m) about the shell origin that holds the
-    shell at planar poses (..., 3) = (y mm, z mm, rx rad) on the pillars (see the module)."""
+def pillar_strains(pose3, foam: Foam, layout: PairLayout):
+    """Each pillar's engineering strains at planar poses (..., 3) = (y mm, z mm, rx rad): axial
+    compression / height and shear offset / height, each (..., 3); and its top's offset (wy, wz) (..., 3)
+    mm from the shell origin in the base frame (the lever arms of :func:`pose_wrench`)."""
     pose3 = np.asarray(pose3, float)
     y, z, rx = (pose3[..., k, None] for k in range(3))
     gap = layout.rest_p[2]
@@ -78,10 +79,20 @@ def pose_wrench(pose3, foam: Foam, layout: PairLayout):
     wy, wz = c * ay - s * az, s * ay + c * az
     ty, tz = y + wy, z + wz
     compression = foam.height_mm - tz  # the pillar's base is at z = 0 below its rest top
-    shear = ty - py
+    return compression / foam.height_mm, (ty - py) / foam.height_mm, wy, wz
+
+
+def pose_wrench(pose3, foam: Foam, layout: PairLayout, extra_axial_kpa=None, extra_shear_kpa=None):
+    """The contact wrench (..., 3) = (F_y N, F_z N, M_x N m) about the shell origin that holds the
+    shell at planar poses (..., 3) = (y mm, z mm, rx rad) on the pillars (see the module).
+    extra_axial_kpa, extra_shear_kpa (..., 3): stresses added to each pillar's elastic ones (a
+    viscoelastic arm's, :mod:`other_sensors.cls.foam_viscoelastic`); None: the elastic foam alone."""
+    strain, gamma, wy, wz = pillar_strains(pose3, foam, layout)
+    sigma = foam_stress(strain, foam.e0_kpa, foam.stiffening_strain) + (0.0 if extra_axial_kpa is None else extra_axial_kpa)
+    tau = (foam.e0_kpa / 3.0) * gamma + (0.0 if extra_shear_kpa is None else extra_shear_kpa)
     area_m2 = foam.section_mm2 * 1e-6
-    fz = foam_stress(compression / foam.height_mm, foam.e0_kpa, foam.stiffening_strain) * 1e3 * area_m2  # N, up on the shell
-    fy = -(foam.e0_kpa / 3.0) * (shear / foam.height_mm) * 1e3 * area_m2
+    fz = sigma * 1e3 * area_m2  # N, up on the shell
+    fy = -tau * 1e3 * area_m2
     mx = (wy * fz - wz * fy) * 1e-3  # N m about the shell origin
     return -np.stack([fy.sum(-1), fz.sum(-1), mx.sum(-1)], axis=-1)
 
@@ -188,10 +199,12 @@ def measure6(pose6, layout: PairLayout, noise_rms_mv: float, rng: np.random.Gene
              adc_range_v: float = ADC_RANGE_V):
     """:func:`measure` for 6-DoF poses (N, 6) = (x, y, z mm, rotation vector rad)."""
     clean = pair_voltages(*pose6_to_pose(pose6), layout)
-    return _digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v), clean
+    return digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v), clean
 
 
-def _digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v):
+def digitise(clean, noise_rms_mv, rng, adc_bits=ADC_BITS, adc_range_v=ADC_RANGE_V):
+    """Readings (shape of ``clean``) V: ``clean`` V plus white Gaussian noise of ``noise_rms_mv`` (``rng``),
+    quantised by an ``adc_bits`` ADC over 0..``adc_range_v`` and clipped at its rails."""
     noisy = clean + rng.normal(0.0, noise_rms_mv * 1e-3, size=clean.shape)
     lsb = adc_range_v / (2 ** adc_bits - 1)
     return np.clip(np.round(noisy / lsb), 0, 2 ** adc_bits - 1) * lsb
@@ -203,4 +216,4 @@ def measure(pose3, layout: PairLayout, noise_rms_mv: float, rng: np.random.Gener
     ``noise_rms_mv`` per sample and pair, quantised by an ``adc_bits`` ADC over 0..``adc_range_v``
     (clipped at its rails)."""
     clean = planar_voltages(pose3, layout)
-    return _digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v), clean
+    return digitise(clean, noise_rms_mv, rng, adc_bits, adc_range_v), clean

@@ -13,12 +13,13 @@ from pathlib import Path
 from mlsim.io import atomic_bytes
 from mlsim.stage import Stage, pickle_load, pickle_save
 
-__all__ = ["SIGNALS", "CALIBRATE", "ESTIMATE", "layout_of", "true_layout_of", "foam_of", "settings_of", "DEFLECTION_BINS_MM",
+__all__ = ["SIGNALS", "CALIBRATE", "ESTIMATE", "layout_of", "true_layout_of", "clean_voltages", "measured_voltages", "foam_of",
+           "settings_of", "DEFLECTION_BINS_MM", "TRUTH_NOTES",
            "deflection", "error_table", "error_table_markdown", "error_table_csv", "SPEC_NOTE"]
 
 # Deflection ranges (mm, the largest displacement of an LED from rest: :func:`deflection`) the error
-# table is split by: a choice spanning rest, small contact and deep compression of the 38 mm pillars.
-DEFLECTION_BINS_MM = (0.0, 2.0, 5.0, 10.0, float("inf"))
+# table is split by: the seed's hardware table's (D < 5, 5-10, 10-15, > 15 mm).
+DEFLECTION_BINS_MM = (0.0, 5.0, 10.0, 15.0, float("inf"))
 
 
 def layout_of(sensor):
@@ -51,6 +52,26 @@ def true_layout_of(sensor, seed: int):
     return with_mounts(nominal, params)
 
 
+def clean_voltages(sensor, pose3, built):
+    """Noise-free voltages (N, P) V of planar poses (N, 3) on the as-built layout ``built``: the
+    optical truth when the sensor has an ``optics`` section, else the estimator's own law."""
+    from other_sensors.cls.ltv import planar_voltages
+
+    if sensor.optics is None:
+        return planar_voltages(pose3, built)
+    from other_sensors.cls.optics import optical_voltages
+
+    return optical_voltages(pose3, built, layout_of(sensor), sensor.optics.optics(sensor.foam.section_mm2 ** 0.5))
+
+
+def measured_voltages(sensor, pose3, built, rng):
+    """(readings, clean) (N, P) V: :func:`clean_voltages` with the scene's noise and ADC (``rng``)."""
+    from other_sensors.cls.shell import digitise
+
+    clean = clean_voltages(sensor, pose3, built)
+    return digitise(clean, sensor.noise.rms_mv, rng, sensor.noise.adc_bits, sensor.noise.adc_range_v), clean
+
+
 def foam_of(sensor):
     from other_sensors.cls.shell import Foam
 
@@ -68,7 +89,7 @@ def settings_of(sensor):
 def _signals(scene, inputs, ctx):
     import numpy as np
 
-    from other_sensors.cls.shell import measure, trajectory
+    from other_sensors.cls.shell import trajectory
 
     s = scene.sensor
     tr, noise = s.trajectory, s.noise
@@ -79,7 +100,7 @@ def _signals(scene, inputs, ctx):
     motion_rng, noise_rng = (np.random.default_rng([scene.seed, k]) for k in (0, 1))
     pose = trajectory(tr.shape, t, tr.rest_s, s.pairs.gap_mm, tr.compression_mm, tr.shear_mm, tr.rotation_deg,
                       tr.frequency_hz, motion_rng)
-    volts, clean = measure(pose, layout, noise.rms_mv, noise_rng, noise.adc_bits, noise.adc_range_v)
+    volts, clean = measured_voltages(s, pose, layout, noise_rng)
     ctx.log(f"cls_signals: {n} samples of {layout.n_pairs} pairs at {tr.rate_hz:g} Hz ({tr.shape})")
     return {"t_s": t, "pose": pose, "voltages": volts, "clean": clean, "n_rest": int(tr.rest_s * tr.rate_hz),
             "rate_hz": float(tr.rate_hz), "reference_every": max(1, int(round(tr.rate_hz / tr.reference_rate_hz)))}
@@ -114,7 +135,8 @@ def _summarize_signals(result) -> dict:
 
 
 SIGNALS = Stage(name="cls_signals", version="2", doc="the shell's trajectory and the pairs' voltages (noise, ADC)",
-                reads=("sensor.pairs", "sensor.trajectory", "sensor.noise", "seed"), needs=(), run=_signals,
+                reads=("sensor.pairs", "sensor.trajectory", "sensor.noise", "sensor.optics", "sensor.foam.section_mm2", "seed"),
+                needs=(), run=_signals,
                 save=pickle_save, load=pickle_load, write=_write_signals, summarize=_summarize_signals)
 
 
@@ -123,7 +145,7 @@ def _calibrate(scene, inputs, ctx):
     import numpy as np
 
     from other_sensors.cls.calibration import CalibrationSettings, calibrate, mount_params, tolerances
-    from other_sensors.cls.shell import measure, trajectory
+    from other_sensors.cls.shell import trajectory
 
     s = scene.sensor
     cal, tr, noise = s.calibration, s.trajectory, s.noise
@@ -132,7 +154,10 @@ def _calibrate(scene, inputs, ctx):
     # the calibration run's own streams (3: motion, 4: noise); the reference poses are taken as exact
     poses = trajectory("general", t, min(0.25, cal.duration_s / 10), s.pairs.gap_mm, tr.compression_mm, tr.shear_mm,
                        tr.rotation_deg, tr.frequency_hz, np.random.default_rng([scene.seed, 3]))
-    volts, _ = measure(poses, true, noise.rms_mv, np.random.default_rng([scene.seed, 4]), noise.adc_bits, noise.adc_range_v)
+    volts, _ = measured_voltages(s, poses, true, np.random.default_rng([scene.seed, 4]))
+    # what the motion capture reports: the poses with its own noise (stream 6)
+    mocap = np.random.default_rng([scene.seed, 6]).standard_normal(poses.shape)
+    poses = poses + mocap * [cal.mocap_noise_mm, cal.mocap_noise_mm, np.radians(cal.mocap_noise_deg)]
     settings = CalibrationSettings(tau=cal.tau, theta_max_deg=cal.theta_max_deg, r_min_mm=cal.r_min_mm,
                                    r_max_mm=s.estimator.r_max_mm, v_max_v=cal.v_max_v, fit_mounting=cal.fit_mounting,
                                    noise_rms_mv=max(noise.rms_mv, 1e-3))
@@ -212,7 +237,8 @@ def _summarize_calibration(result) -> dict:
 
 
 CALIBRATE = Stage(name="cls_calibrate", version="2", doc="batch LM calibration of each pair's coefficients and mounting poses from a 37 s trajectory of measured poses",
-                  reads=("sensor.pairs", "sensor.calibration", "sensor.noise", "sensor.estimator.r_max_mm", "sensor.trajectory.compression_mm",
+                  reads=("sensor.pairs", "sensor.calibration", "sensor.noise", "sensor.optics", "sensor.foam.section_mm2",
+                         "sensor.estimator.r_max_mm", "sensor.trajectory.compression_mm",
                          "sensor.trajectory.shear_mm", "sensor.trajectory.rotation_deg", "sensor.trajectory.frequency_hz", "seed"),
                   needs=(), run=_calibrate, save=pickle_save, load=pickle_load, write=_write_calibration, summarize=_summarize_calibration)
 
@@ -289,10 +315,23 @@ TABLE_COLUMNS = ("deflection_mm", "n", "y_rms_mm", "z_rms_mm", "position_rms_mm"
                  "spec3_position_mm", "spec3_angle_deg")
 
 
-def error_table_markdown(rows, shape: str, latency_ms, force_rms_n, moment_rms_nmm, mean_iterations, at_detection_mm=None) -> str:
+TRUTH_NOTES = {
+    "law": ("The simulated voltages follow the same model the estimator fits (after calibration), so only the noise, the ADC "
+            "and the calibration's residual remain; the hardware's errors also hold model error, motion-capture error and "
+            "foam hysteresis."),
+    "optics": ("The simulated voltages come from optics (other_sensors.cls.optics: the LED's beam, the LTV's acceptance, the "
+               "cavity's diffuse light) and the calibration fits the seven-coefficient law to them from motion-capture poses "
+               "with their own noise: the errors hold the law's model error and the calibration's; run the same scene "
+               "without [sensor.optics] for the noise alone. With sensor.foam.maxwell_kpa > 0 the true force holds the "
+               "foam's hysteresis (other_sensors.cls.foam_viscoelastic), which the elastic law's force misses."),
+}
+
+
+def error_table_markdown(rows, shape: str, latency_ms, force_rms_n, moment_rms_nmm, mean_iterations, at_detection_mm=None,
+                         truth: str = "law") -> str:
     """The error table by deflection range as Markdown, SPEC 3's reference figures in the last two
     columns, with the detection latency, the force and moment error through the foam law and the
-    mean iteration count under it."""
+    mean iteration count under it; ``truth`` ("law" or "optics") says what made the voltages."""
     lines = [f"# CLS pose errors by deflection range: {shape} trajectory", "",
              "| deflection (mm) | n | y RMS (mm) | z RMS (mm) | position RMS (mm) | rx RMS (deg) | max (mm) "
              "| SPEC 3 position (mm) | SPEC 3 angle (deg) |",
@@ -301,9 +340,7 @@ def error_table_markdown(rows, shape: str, latency_ms, force_rms_n, moment_rms_n
         lines.append(f"| {_range_label(row)} | {row['n']} | {_fmt(row['y_rms_mm'])} | {_fmt(row['z_rms_mm'])} | "
                      f"{_fmt(row['position_rms_mm'])} | {_fmt(row['rx_rms_deg'])} | {_fmt(row['max_mm'])} | "
                      f"{SPEC_POSITION_MM} | {SPEC_ANGLE_DEG} |")
-    lines += ["", "Deflection: the largest displacement of an LED from rest (mm). The simulated voltages follow the same "
-              "model the estimator fits (after calibration), so only the noise, the ADC and the calibration's residual "
-              "remain; the hardware's errors also hold model error, motion-capture error and foam hysteresis.", "",
+    lines += ["", "Deflection: the largest displacement of an LED from rest (mm). " + TRUTH_NOTES[truth], "",
               f"- collision (motion) detection latency after the onset: {_fmt(latency_ms, '{:.1f}')} ms"
               + (" (no motion in this trajectory)" if latency_ms is None else
                  f", at a deflection of {_fmt(at_detection_mm, '{:.3f}')} mm"),
@@ -350,7 +387,12 @@ def _estimate(scene, inputs, ctx):
     onset = sig["n_rest"]
     detected = np.flatnonzero(est.moving[onset:])
     latency_ms = float(detected[0] / sig["rate_hz"] * 1e3) if len(detected) and not np.allclose(sig["pose"][onset:], rest_pose) else None
-    wrench_true = pose_wrench(true, foam, layout)
+    if s.foam.maxwell_kpa > 0:  # the viscoelastic truth over the whole 2 kHz trajectory, read at the reference times
+        from other_sensors.cls.foam_viscoelastic import viscoelastic_wrench
+
+        wrench_true = viscoelastic_wrench(sig["pose"], sig["t_s"], foam, layout, s.foam.maxwell_kpa, s.foam.relaxation_s)[ref]
+    else:
+        wrench_true = pose_wrench(true, foam, layout)
     wrench_est = pose_wrench(got, foam, layout)
     ok = np.all(np.isfinite(got), axis=1)
     force_err = np.hypot(*(wrench_est[ok, :2] - wrench_true[ok, :2]).T)
@@ -367,6 +409,7 @@ def _estimate(scene, inputs, ctx):
     return {"t_s": sig["t_s"], "estimates": est.poses, "iterations": est.iterations, "status": est.status, "moving": est.moving,
             "reference": ref, "true": true, "wrench_true": wrench_true, "wrench_est": wrench_est,
             "table": table, "latency_ms": latency_ms, "deflection_at_detection_mm": at_detection, "shape": s.trajectory.shape,
+            "truth": "law" if s.optics is None else "optics",
             "onset_s": float(onset / sig["rate_hz"]),
             "moment_rms_nmm": moment_rms,
             "false_alarms": int(est.moving[:onset].sum()), "status_counts": counts,
@@ -396,7 +439,7 @@ def _write_estimate(result, out_dir: Path, ctx) -> list[Path]:
     files.append(atomic_bytes(out_dir / "cls_errors.json", json.dumps(report, indent=2).encode()))
     files.append(atomic_bytes(out_dir / "cls_errors.md", error_table_markdown(
         result["table"], result["shape"], result["latency_ms"], result["force_rms_n"], result["moment_rms_nmm"],
-        result["mean_iterations"], result["deflection_at_detection_mm"]).encode()))
+        result["mean_iterations"], result["deflection_at_detection_mm"], result.get("truth", "law")).encode()))
     files.append(atomic_bytes(out_dir / "cls_errors.csv", error_table_csv(result["table"])))
     # three pose panels (estimate at 2 kHz over the 80 Hz reference) and the errors at the reference
     # times, which the pose panels' scale hides; the dashed line marks the motion detector's first alarm
@@ -434,6 +477,6 @@ def _summarize_estimate(result) -> dict:
 
 
 ESTIMATE = Stage(name="cls_estimate", version="2", doc="motion detection, LM pose estimates, errors by deflection, force via the foam law",
-                 reads=("sensor.pairs", "sensor.foam", "sensor.estimator", "sensor.noise.adc_range_v", "seed"),
+                 reads=("sensor.pairs", "sensor.foam", "sensor.estimator", "sensor.noise.adc_range_v", "sensor.optics", "seed"),
                  needs=("cls_signals", "cls_calibrate"),
                  run=_estimate, save=pickle_save, load=pickle_load, write=_write_estimate, summarize=_summarize_estimate)

@@ -72,7 +72,9 @@ class SoleContact:
     sensor_forces (N, 3) N: each cell's three normal-force readings. cell_forces (N,) N: their sums.
     wrench (6,): the ankle F/T reading (Fx, Fy, Fz N, Mx, My, Mz N m) about the sole frame's origin.
     gaps (N,) m: each cell's proximity reading (the least vertical gap from its face to the terrain, 0 in contact, inf with
-    no terrain below). pose: the foot's pose.
+    no terrain below). pose: the foot's pose. ankle_wrench (6,) or None: what the ankle F/T reads at its own
+    height when the contact carries friction (a landing, :mod:`other_sensors.sole.landing`); None when the
+    contact is normal pressure only, where the ankle's height changes no moment and ``wrench`` is the reading.
     """
 
     sensor_forces: np.ndarray
@@ -80,11 +82,13 @@ class SoleContact:
     wrench: np.ndarray
     gaps: np.ndarray
     pose: FootPose
+    ankle_wrench: np.ndarray | None = None
 
     @property
     def ankle_moment(self) -> float:
-        """M_s (N m): the horizontal ankle moment's magnitude, sqrt(Mx^2 + My^2) (SPEC 4)."""
-        return float(np.hypot(self.wrench[3], self.wrench[4]))
+        """M_s (N m): the horizontal ankle moment's magnitude, sqrt(Mx^2 + My^2) (SPEC 4), at the ankle F/T."""
+        w = self.wrench if self.ankle_wrench is None else self.ankle_wrench
+        return float(np.hypot(w[3], w[4]))
 
 
 def barycentric_weights(points: np.ndarray, triangle: np.ndarray) -> np.ndarray:

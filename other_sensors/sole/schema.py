@@ -17,7 +17,7 @@ from .cells import CELL_AREA_M2, DEFAULT_ROW_COUNTS, SENSOR_RADIUS_FRACTION
 from .feasibility import CLEARANCE_M, EPS_AREA, EPS_FORCE_KG, EPS_TORQUE_NM
 
 __all__ = ["SoleSensor", "CellsSpec", "FoundationSpec", "ProximitySpec", "TerrainSpec", "FootSpec", "FeasibilitySpec",
-           "BalanceSpec", "BalanceSweepSpec", "ObstacleSpec", "FOUNDATION_STIFFNESS_N_M3", "PROXIMITY_RANGE_MM", "EARLY_CONTACT_LOAD_N", "FORCE_NOISE_N"]
+           "BalanceSpec", "BalanceSweepSpec", "ObstacleSpec", "LandingSpec", "FOUNDATION_STIFFNESS_N_M3", "PROXIMITY_RANGE_MM", "EARLY_CONTACT_LOAD_N", "FORCE_NOISE_N"]
 
 # --- documented defaults (the SPEC does not give them) -------------------------------------------
 # Winkler modulus of the skin's foam and cover. A choice: the 86 kg robot standing on one whole sole
@@ -212,6 +212,53 @@ class BalanceSweepSpec(_Model):
         return value
 
 
+class LandingSpec(_Model):
+    """The swing foot's landing (:mod:`other_sensors.sole.landing`): when a scene gives this section,
+    the foot lands on its terrain and the contact is read at impact, instead of the static placement
+    under ``sensor.foot.load_n`` (which stays the weight share the landing leg takes over). The robot's
+    mass and CoM height are ``sensor.balance``'s. SPEC 4 gives none of these values; each default's
+    source is beside it, and none is fitted to a published figure."""
+
+    # Landing mass: the swing leg's share of the body mass, thigh 0.100 + shank 0.0465 + foot 0.0145
+    # (Winter, Biomechanics and Motor Control of Human Movement, 4th ed., 2009, table 4.1: human
+    # segment fractions, taken for the humanoid's leg, a simplification): 13.8 kg of 86 kg.
+    leg_mass_fraction: float = Field(0.161, gt=0.0, le=1.0)
+    # The swing profile (a choice): a 50 mm foot clearance, descended in 0.25 s on a cosine, so the
+    # planned touchdown is at rest and an obstacle 20 mm up is met at 0.31 m/s.
+    swing_height_mm: float = Field(50.0, gt=0.0, le=1000.0)
+    swing_descent_s: float = Field(0.25, gt=0.0, le=10.0)
+    # The descent speed at first contact, when given, instead of the swing profile's (mm/s).
+    speed_mm_s: float | None = Field(None, ge=0.0, le=1e4)
+    # The periodic LIPM gait at touchdown (choices): 200 mm steps, feet 200 mm apart (as
+    # scenes/sole/double_support.toml), 0.8 s of single support; the landing foot is the left one.
+    step_length_mm: float = Field(200.0, ge=0.0, le=2000.0)
+    step_width_mm: float = Field(200.0, ge=0.0, le=2000.0)
+    single_support_s: float = Field(0.8, gt=0.0, le=10.0)
+    side: Literal["left", "right"] = "left"
+    # The ankle F/T's height over the sole (a choice of an adult-size humanoid's order, ~0.1 m).
+    ankle_height_mm: float = Field(100.0, ge=0.0, le=1000.0)
+    # The skin foam's Kelvin-Voigt time tau = c / k (a choice: 2 ms, a loss factor omega tau of 0.9
+    # at the full sole's 460 rad/s impact, within open-cell foams' 0.1-1; 0 is the elastic layer).
+    damping_time_ms: float = Field(2.0, ge=0.0, le=1000.0)
+    # The early-contact window read at the skin's 250 Hz (SPEC 4: cells up to 250 Hz): 40 ms, ten
+    # ticks, longer than the impact's compression (a quarter period: 3-15 ms on the sole's cells).
+    window_ms: float = Field(40.0, gt=0.0, le=2000.0)
+    rate_hz: float = Field(250.0, gt=0.0, le=10000.0)
+
+    def params(self, load_n: float, stiffness_n_m3: float, balance, contact_height_m: float):
+        """The :class:`other_sensors.sole.landing.LandingParams` of this landing for a first contact at
+        ``contact_height_m`` above the planned ground (m)."""
+        from .landing import LandingParams, swing_speed, touchdown_com
+
+        speed = (self.speed_mm_s * 1e-3 if self.speed_mm_s is not None
+                 else swing_speed(contact_height_m, self.swing_height_mm * 1e-3, self.swing_descent_s))
+        com, vel = touchdown_com(self.step_length_mm * 1e-3, self.step_width_mm * 1e-3, self.single_support_s, balance.z_com_m, self.side)
+        return LandingParams(mass_kg=self.leg_mass_fraction * balance.mass_kg, speed_m_s=speed, load_n=load_n,
+                             stiffness_n_m3=stiffness_n_m3, damping_s=self.damping_time_ms * 1e-3, com_m=tuple(com),
+                             com_velocity_m_s=tuple(vel), z_com_m=balance.z_com_m, ankle_height_m=self.ankle_height_mm * 1e-3,
+                             rate_hz=self.rate_hz, window_s=self.window_ms * 1e-3)
+
+
 class ObstacleSpec(_Model):
     """One case of the obstacle table (stage ``sole_obstacle_table``): a terrain and the foot's pose
     on it; the cells, foundation, proximity and rules are the scene's."""
@@ -241,6 +288,7 @@ class SoleSensor(_Model):
     balance_sweep: BalanceSweepSpec = BalanceSweepSpec()
     second_foot: FootSpec | None = None
     obstacles: tuple[ObstacleSpec, ...] = ()
+    landing: LandingSpec | None = None  # given: the foot lands (other_sensors.sole.landing); None: static placement
 
     @field_validator("obstacles")
     @classmethod

@@ -18,19 +18,36 @@ __all__ = ["CONTACT", "FEASIBILITY", "OBSTACLE_TABLE", "DOUBLE_SUPPORT", "BALANC
            "contact_of_scene", "contact_of_foot", "assessment_of", "obstacle_rows"]
 
 
-def contact_of_foot(sensor, foot, terrain_spec, rng):
+def contact_of_foot(sensor, foot, terrain_spec, rng, static: bool = False):
     """The :class:`other_sensors.sole.contact.SoleContact` of ``foot`` (:class:`FootSpec`) on
     ``terrain_spec`` (:class:`TerrainSpec`) with the sensor's cells and foundation, each force
-    sensor's noise drawn from ``rng``."""
+    sensor's noise drawn from ``rng``: at the landing's impact when the sensor has a ``landing``
+    section (and ``static`` is False), else placed statically under ``foot.load_n``."""
     from .contact import SoleContact, height_for_load, sole_contact
 
     layout, terrain = sensor.cells.layout(), terrain_spec.to_terrain()
     pose = foot.pose()
     k, n = sensor.foundation.stiffness_n_m3, sensor.cells.quadrature
+    if sensor.landing is not None and not static:
+        return landing_of_foot(sensor, foot, terrain_spec).contact_at_impact(
+            rng.normal(0.0, sensor.cells.force_noise_n, (layout.n_cells, 3)))
     z = foot.height_mm * 1e-3 if foot.height_mm is not None else height_for_load(layout, pose, terrain, k, foot.load_n, n)
     exact = sole_contact(layout, pose.with_height(z), terrain, k, n)
     noisy = exact.sensor_forces + rng.normal(0.0, sensor.cells.force_noise_n, exact.sensor_forces.shape)
     return SoleContact(noisy, noisy.sum(axis=1), exact.wrench, exact.gaps, exact.pose)
+
+
+def landing_of_foot(sensor, foot, terrain_spec):
+    """The :class:`other_sensors.sole.landing.Landing` of ``foot`` on ``terrain_spec`` under
+    ``sensor.landing`` (noise-free): first contact found at the foot's x, y and angles, the speed
+    there from the swing profile, ``foot.load_n`` the weight share taken over."""
+    from .landing import first_contact_height, simulate_landing
+
+    layout, terrain, pose = sensor.cells.layout(), terrain_spec.to_terrain(), foot.pose()
+    n = sensor.cells.quadrature
+    params = sensor.landing.params(foot.load_n, sensor.foundation.stiffness_n_m3, sensor.balance,
+                                   first_contact_height(layout, pose, terrain, n))
+    return simulate_landing(layout, pose, terrain, params, n)
 
 
 def contact_of_scene(sensor, seed: int):
@@ -50,6 +67,20 @@ def check(scene) -> list:
                                                      "section (x_mm, y_mm, yaw_deg, load_n)"))
     if "sole_obstacle_table" in scene.outputs and not sensor.obstacles:
         problems.append(("sensor.obstacles", [], "the output sole_obstacle_table needs one or more [[sensor.obstacles]] cases"))
+    if sensor.landing is not None and sensor.landing.speed_mm_s is None:
+        # the swing profile must reach down to where the foot first meets each terrain it lands on
+        from .landing import first_contact_height
+
+        cases = [(sensor.foot, sensor.terrain)] + [(c.foot, c.terrain) for c in sensor.obstacles]
+        layout, n = sensor.cells.layout(), sensor.cells.quadrature
+        try:
+            top = max(first_contact_height(layout, f.pose(), t.to_terrain(), n) for f, t in cases)
+        except ValueError:  # no terrain under a foot: the stages say so
+            top = 0.0
+        if 1e3 * top > sensor.landing.swing_height_mm:
+            problems.append(("sensor.landing.swing_height_mm", sensor.landing.swing_height_mm,
+                             f"the terrain meets the sole {1e3 * top:.1f} mm above the planned ground, above the swing's apex; "
+                             "raise swing_height_mm or give sensor.landing.speed_mm_s"))
     return problems
 
 
@@ -71,8 +102,9 @@ def _summarize_contact(result) -> dict:
 
 CONTACT = Stage(
     name="sole_contact", doc="cell force readings, proximity gaps and the ankle wrench of the foot on the terrain",
-    reads=("sensor.cells", "sensor.foundation", "sensor.terrain", "sensor.foot", "seed"), needs=(), run=_contact,
-    version="2",  # 2: proximity is the least gap under the cell's face, not at its centre
+    reads=("sensor.cells", "sensor.foundation", "sensor.terrain", "sensor.foot", "sensor.landing", "sensor.balance.mass_kg",
+           "sensor.balance.z_com_m", "seed"), needs=(), run=_contact,
+    version="3",  # 2: proximity is the least gap under the cell's face, not at its centre; 3: a landing when sensor.landing
     save=pickle_save, load=pickle_load, write=_write_contact, summarize=_summarize_contact)
 
 
@@ -228,19 +260,19 @@ def obstacle_rows(sensor, seed: int) -> list[tuple]:
 
 def _obstacle_table(scene, inputs, ctx):
     rows = obstacle_rows(scene.sensor, scene.seed)
-    for name, _, a, _ in rows:
-        ctx.log(f"sole obstacle {name}: M_s = {a.ankle_moment:.2f} N m ({'re-plan' if a.ft_replan else 'safe'}), "
+    for name, _, a, c in rows:
+        ctx.log(f"sole obstacle {name}: F_z = {c.wrench[2]:.0f} N, M_s = {a.ankle_moment:.2f} N m ({'re-plan' if a.ft_replan else 'safe'}), "
                 f"A_p/A_s = {a.area_ratio:.3f} ({'re-plan' if a.skin_replan else 'safe'})")
-    return [(name, description, a) for name, description, a, _ in rows]
+    return [(name, description, a, float(c.wrench[2])) for name, description, a, c in rows]
 
 
-_TABLE_COLUMNS = ("obstacle", "ankle_moment_nm", "ft_rule", "polygon_area_cm2", "sole_area_cm2", "area_ratio", "skin_rule",
+_TABLE_COLUMNS = ("obstacle", "fz_n", "ankle_moment_nm", "ft_rule", "polygon_area_cm2", "sole_area_cm2", "area_ratio", "skin_rule",
                   "active_cells", "sidestep_mm", "skin_cop_x_mm", "skin_cop_y_mm", "ft_zmp_x_mm", "ft_zmp_y_mm")
 
 
-def _table_values(name, a) -> list:
+def _table_values(name, a, fz) -> list:
     step = a.sidestep_skin if a.skin_replan else a.sidestep_ft
-    return [name, a.ankle_moment, "re-plan" if a.ft_replan else "keep", 1e4 * a.polygon_area, 1e4 * a.sole_area, a.area_ratio,
+    return [name, fz, a.ankle_moment, "re-plan" if a.ft_replan else "keep", 1e4 * a.polygon_area, 1e4 * a.sole_area, a.area_ratio,
             "re-plan" if a.skin_replan else "keep", int(a.active.sum()), 1e3 * step, *(1e3 * a.cop), *(1e3 * a.cop_ft)]
 
 
@@ -253,36 +285,41 @@ def _write_obstacle_table(rows, out_dir: Path, ctx) -> list[Path]:
     def fmt(v):
         return f"{v:.4g}" if isinstance(v, float) else str(v)
 
-    table = [_table_values(name, a) for name, _, a in rows]
+    table = [_table_values(name, a, fz) for name, _, a, fz in rows]
     csv = [",".join(_TABLE_COLUMNS)] + [",".join(fmt(v) for v in r) for r in table]
-    md = ["Step feasibility on early contact (SPEC 4): ankle F/T rule M_s >= eps_t, skin rule A_p / A_s <= eps_A.", "",
-          "| obstacle | M_s (N m) | F/T rule | A_p (cm^2) | A_s (cm^2) | A_p / A_s | skin rule | active cells | sidestep (mm) |",
-          "|---|---:|---|---:|---:|---:|---|---:|---:|"]
-    md += [f"| {r[0]} | {r[1]:.2f} | {r[2]} | {r[3]:.1f} | {r[4]:.1f} | {r[5]:.3f} | {r[6]} | {r[7]} | {r[8]:.0f} |" for r in table]
-    md += [""] + [f"- {name}: {description}" for name, description, _ in rows if description]
+    landing = ctx is not None and getattr(ctx, "scene", None) is not None and ctx.scene.sensor.landing is not None
+    md = ["Step feasibility on early contact (SPEC 4): ankle F/T rule M_s >= eps_t, skin rule A_p / A_s <= eps_A; "
+          + ("at the landing's impact (other_sensors.sole.landing)." if landing else "the foot placed statically under its load."), "",
+          "| obstacle | F_z (N) | M_s (N m) | F/T rule | A_p (cm^2) | A_s (cm^2) | A_p / A_s | skin rule | active cells | sidestep (mm) |",
+          "|---|---:|---:|---|---:|---:|---:|---|---:|---:|"]
+    md += [f"| {r[0]} | {r[1]:.0f} | {r[2]:.2f} | {r[3]} | {r[4]:.1f} | {r[5]:.1f} | {r[6]:.3f} | {r[7]} | {r[8]} | {r[9]:.0f} |"
+           for r in table]
+    md += [""] + [f"- {name}: {description}" for name, description, *_ in rows if description]
     files = [atomic_bytes(out_dir / "sole_obstacles.csv", ("\n".join(csv) + "\n").encode()),
              atomic_bytes(out_dir / "sole_obstacles.md", ("\n".join(md) + "\n").encode())]
     layout = _layout_of(ctx)
     fig, axes = plt.subplots(1, len(rows), figsize=(4.2 * len(rows), 6.0), squeeze=False)
-    for ax, (name, _, a) in zip(axes[0], rows):
+    for ax, (name, _, a, _) in zip(axes[0], rows):
         _draw_sole(ax, layout, a, title=name)
         ax.title.set_fontsize(8)
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", fontsize=8, ncol=5)
     fig.tight_layout(rect=(0.0, 0.06, 1.0, 1.0))
     files.append(save_png(fig, out_dir / "sole_obstacles.png", dpi=100))
-    for name, _, a in rows:
+    for name, _, a, _ in rows:
         files.append(_plot(a, out_dir / f"sole_obstacle_{name}.png", ctx))
     return files
 
 
 def _summarize_obstacle_table(rows) -> dict:
-    return {name: _summarize_feasibility(a) for name, _, a in rows}
+    return {name: {**_summarize_feasibility(a), "fz_n": fz} for name, _, a, fz in rows}
 
 
 OBSTACLE_TABLE = Stage(
     name="sole_obstacle_table", doc="both step-feasibility rules on each case of sensor.obstacles: one table (CSV, Markdown) and the sole plots",
-    reads=("sensor.cells", "sensor.foundation", "sensor.proximity", "sensor.feasibility", "sensor.obstacles", "seed"), needs=(),
-    run=_obstacle_table, save=pickle_save, load=pickle_load, write=_write_obstacle_table, summarize=_summarize_obstacle_table)
+    reads=("sensor.cells", "sensor.foundation", "sensor.proximity", "sensor.feasibility", "sensor.landing", "sensor.balance.mass_kg",
+           "sensor.balance.z_com_m", "sensor.obstacles", "seed"), needs=(),
+    run=_obstacle_table, save=pickle_save, load=pickle_load, write=_write_obstacle_table, summarize=_summarize_obstacle_table,
+    version="2")  # 2: F_z per row; the contact at a landing's impact when sensor.landing
 
 
 # -------------------------------------------------------------------------------- double support
@@ -293,7 +330,8 @@ def _double_support(scene, inputs, ctx):
 
     sensor = scene.sensor
     rng = np.random.default_rng(scene.seed)  # the first foot's noise as in sole_contact, then the second's
-    contacts = (contact_of_foot(sensor, sensor.foot, sensor.terrain, rng), contact_of_foot(sensor, sensor.second_foot, sensor.terrain, rng))
+    # both feet stand (static placement): double support comes after the landing
+    contacts = tuple(contact_of_foot(sensor, foot, sensor.terrain, rng, static=True) for foot in (sensor.foot, sensor.second_foot))
     result = double_support(sensor.cells.layout(), contacts, tuple(assessment_of(sensor, c) for c in contacts))
     ctx.log(f"sole double support: polygon {1e4 * result.polygon_area:.0f} cm^2, CoP skin {np.round(1e3 * result.cop, 1)} mm, "
             f"F/T {np.round(1e3 * result.cop_ft, 1)} mm")
