@@ -63,8 +63,22 @@ from fem.elasticity import Discretisation, _per_qp
 from fem.nonlinear import FullStepNewton, _identity_like, residual_and_tangent
 from mlsim.errors import SolverError
 
-__all__ = ["INTEGRATORS", "TimeIntegrator", "time_integrator", "mass_matrix", "rayleigh_damping", "rayleigh_ratio",
+__all__ = ["cantilever_first_mode_rad_s", "INTEGRATORS", "TimeIntegrator", "time_integrator", "mass_matrix", "rayleigh_damping", "rayleigh_ratio",
            "strain_energy_j", "DynamicState", "DynamicReport", "integrate"]
+
+
+# the first root of cos b cosh b = -1: the clamped-free Euler-Bernoulli beam's first mode
+_CANTILEVER_ROOT = 1.8751040687119611
+
+
+def cantilever_first_mode_rad_s(bending_stiffness_n_m2: float, mass_per_length_kg_m: float, length_m: float) -> float:
+    """omega_1 = 1.8751^2 sqrt(EI / (m L^4)) (rad/s): the first bending mode of a clamped-free Euler-Bernoulli
+    beam [Hughes2000]_ (the rods' time scale; shear and rotary inertia lower a stubby rod's, so this is an
+    upper bound on the frequency and the step it asks for is conservative; tests/test_dynamics.py checks
+    it on a slender rod)."""
+    if not (bending_stiffness_n_m2 > 0 and mass_per_length_kg_m > 0 and length_m > 0):
+        raise ValueError(f"EI = {bending_stiffness_n_m2} N m^2, m = {mass_per_length_kg_m} kg/m, L = {length_m} m: must be > 0")
+    return _CANTILEVER_ROOT**2 * math.sqrt(bending_stiffness_n_m2 / (mass_per_length_kg_m * length_m**4))
 
 
 @BilinearForm

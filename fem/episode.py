@@ -55,6 +55,9 @@ class SolveSettings:
     contact_max_iterations: int = 200  # ADMM iterations per linearisation
     nonlinear_newton: str = "condensed"  # the nonlinear tier's step solver: "condensed" | "penalty" (fem.finite_strain)
     rod_kinematics: str = "first_order"  # "first_order" | "second_order" (fem.rod_kinematics; admm only)
+    dynamics: str = "quasi_static"  # nonlinear tier: "quasi_static" | "backward_euler" (fem.dynamics)
+    loss_factor: float = 0.1  # dynamics: damping ratio loss_factor / 2 at the rods' first bending mode
+    steps_per_period: float = 4.0  # dynamics: the least steps per period of the rods' first bending mode
 
     @classmethod
     def from_scene(cls, scene) -> "SolveSettings":
@@ -68,7 +71,8 @@ class SolveSettings:
                    penalty_factor=f.penalty_factor, patches_per_tip=f.patches_per_tip, patches_per_side=f.patches_per_side,
                    gravity=f.gravity, small_strain_limit=f.small_strain_limit, buckling_limit=f.buckling_limit, contact_solver=f.contact_solver,
                    contact_max_iterations=f.contact_max_iterations, rod_kinematics=f.rod_kinematics,
-                   nonlinear_newton=f.nonlinear_newton)
+                   nonlinear_newton=f.nonlinear_newton, dynamics=f.dynamics, loss_factor=f.loss_factor,
+                   steps_per_period=f.steps_per_period)
 
 
 def layer_materials(scene):

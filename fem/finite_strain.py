@@ -114,6 +114,12 @@ class _Problem:
         self.rtol, self.max_iterations = rtol, max_iterations
         self.free = body.free
         self.f_ext = body.f_gravity
+        # implicit dynamics (set_inertia): the step's inertia and damping as a constant stiffness added to the
+        # body, R_int(x) + A x = f_ext + W f; the forces' scale then excludes f_ext's inertial part
+        self.added = None
+        self.force_scale_n = None
+        self._bodies: dict = {}  # the condensed Newton's linearisations, one per step size
+        self._added_key = None
         self.iterations = 0
         self._woodbury = ContactWoodbury(self.W[self.free])
         self.contact_solver, self.contact_max_iterations = contact_solver, contact_max_iterations
@@ -127,6 +133,27 @@ class _Problem:
         blocks = np.arange(3 * m).reshape(m, 3)
         self._rows = np.repeat(blocks, 3, axis=1).ravel()
         self._cols = np.tile(blocks, (1, 3)).ravel()
+
+    def set_inertia(self, added: sp.csr_matrix | None, f_ext: np.ndarray, force_scale_n: float | None, key=None) -> None:
+        """The next steps' added stiffness (an implicit step's (M / dt^2 + C / dt), or None), right-hand side
+        and force scale; ``key`` names the added stiffness (the step size): the condensed Newton keeps one
+        linearisation per key, since its kept tangent must carry the step's inertia."""
+        if key != self._added_key:
+            self._bodies[self._added_key] = self._condensed
+            self._condensed = self._bodies.pop(key, None)
+            self._added_key = key
+        self.added, self.f_ext, self.force_scale_n = added, f_ext, force_scale_n
+
+    def internal(self, x, with_tangent=True):
+        """R_int(x) (+ A x) and its tangent (+ A): the body with the step's inertia, if any."""
+        r, K = residual_and_tangent(self.d, x, self.body.lam, self.body.mu, with_tangent)
+        if self.added is None:
+            return r, K
+        return r + self.added @ x, (K + self.added if with_tangent else None)
+
+    def _force_scale(self, extra: float) -> float:
+        own = self.force_scale_n if self.force_scale_n is not None else float(np.linalg.norm(self.f_ext[self.free]))
+        return max(own, extra, 1e-12)
 
     def _direction(self, A: sp.csr_matrix, K: sp.csr_matrix, D: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """A^-1 rhs for the Newton direction, A = K - W D W^T on the free DOFs (:class:`ContactWoodbury`)."""
@@ -144,7 +171,7 @@ class _Problem:
         return self._woodbury.iterations
 
     def _evaluate(self, x, pose, drag, state, predictor, with_tangent):
-        r_int, K = residual_and_tangent(self.d, x, self.body.lam, self.body.mu, with_tangent)
+        r_int, K = self.internal(x, with_tangent)
         u_c = self.point_u(x)
         law = condensed._contact_law(self.points.X, u_c, self.shape, pose, drag, state, self.friction, self.k_n, self.k_t, predictor, self.smooth_m)
         R = r_int - self.f_ext - self.W @ law.f.ravel()
@@ -166,7 +193,7 @@ class _Problem:
             R, A, law = self._evaluate(x, pose, drag, state, True, True)
         except FloatingPointError as exc:
             raise SolverError(f"{case}: {exc}") from None
-        scale = max(float(np.linalg.norm(self.f_ext[free])), float(np.linalg.norm((self.W @ law.f.ravel())[free])), 1e-12)
+        scale = self._force_scale(float(np.linalg.norm((self.W @ law.f.ravel())[free])))
         norm = float(np.linalg.norm(R[free]))
         history = [norm]
         for it in range(self.max_iterations):
@@ -223,7 +250,7 @@ class _Problem:
 
         def residual(x):
             try:
-                r_int, _ = residual_and_tangent(self.d, x, self.body.lam, self.body.mu, with_tangent=False)
+                r_int, _ = self.internal(x, with_tangent=False)
             except FloatingPointError:
                 return None
             return (self.f_ext - r_int)[free]
@@ -268,7 +295,7 @@ class _Problem:
                 continue
             Wf_f = body.Wf @ f
             norm = float(np.linalg.norm(r_c + Wf_f))
-            scale = max(float(np.linalg.norm(self.f_ext[free])), float(np.linalg.norm(Wf_f)), 1e-12)
+            scale = self._force_scale(float(np.linalg.norm(Wf_f)))
             history.append(norm / scale)
             if norm <= self.condensed_rtol * scale:
                 return x_c, law, it + 1
@@ -296,6 +323,10 @@ class _Problem:
             x, r = x_next, r_next
         raise SolverError(f"{case}: the condensed Newton did not converge in {self.max_iterations} iterations; relative residuals "
                           + ", ".join(f"{h:.1e}" for h in history[-4:]))
+
+    def jumps(self, pose, state) -> bool:
+        """Would the indenter at ``pose`` sink deeper than ``max_jump`` into the points where they are (tunnelling)?"""
+        return -float(indenter_gap(self.shape, pose, self.points.X + state.u).min()) > self.max_jump_m
 
     def path(self, x0, pose, pose_old, state, case, depth=8):
         """:meth:`newton` from ``pose_old`` to ``pose``, halving the move on failure or tunnelling
@@ -327,7 +358,7 @@ class _Problem:
             return x, law
 
         def jumps(p, start):
-            return -float(indenter_gap(self.shape, p, self.points.X + start[1].u).min()) > self.max_jump_m
+            return self.jumps(p, start[1])
 
         def too_deep(result):
             law = result[1]
@@ -338,7 +369,8 @@ class _Problem:
             x1, law1 = result
             return x1, condensed.PointState(self.point_u(x1), law1.f_t.copy())
 
-        return solve_with_halving(step, pose_old, pose, (x0, state), depth, jumps=jumps, too_deep=too_deep, deep_at_the_end="return",
+        return solve_with_halving(step, pose_old, pose, (x0, state), depth, jumps=jumps, too_deep=too_deep,
+                                  deep_at_the_end="return" if depth > 0 else "raise",
                                   next_start=next_start)
 
 
@@ -487,7 +519,7 @@ class CondensedBody:
         from fem.linsolve import factorise
 
         free = problem.free
-        _, K = residual_and_tangent(problem.d, x, problem.body.lam, problem.body.mu, with_tangent=True)
+        _, K = problem.internal(x, with_tangent=True)
         self.fact = factorise(K[free][:, free].tocsr(), definite=False, symmetric=True)
         self.Wf = problem.W[free].tocsc()
         n, k = self.Wf.shape
@@ -503,6 +535,88 @@ class CondensedBody:
             raise SolverError(f"the body linearised at this state is not stable ({exc})") from None
         self.warm = WarmStart()
         problem.linearisations += 1
+
+
+class _Inertia:
+    """Backward Euler's inertia and damping for the nonlinear tier's steps (``fidelity.solve.dynamics``).
+
+    A step of size dt from (x_n, v_n) solves M (x - x_n - dt v_n) / dt^2 + C (x - x_n) / dt + R_int(x)
+    = f_gravity + W f(x): the body with the constant stiffness A = M / dt^2 + C / dt added and the
+    right-hand side f_gravity + M (x_n + dt v_n) / dt^2 + C x_n / dt (:meth:`_Problem.set_inertia`);
+    then v = (x - x_n) / dt. M is the consistent mass of the layers' densities
+    (:func:`fem.dynamics.mass_matrix`), C = b_K K_0 stiffness-proportional Rayleigh damping with
+    b_K = loss_factor / omega_1: the damping ratio loss_factor / 2 at the rods' first bending mode
+    omega_1 (:func:`fem.dynamics.cantilever_first_mode_rad_s` of the layered section, the rods'
+    mean density). Backward Euler is energy-stable at any step (fem.dynamics); a step that fails, or
+    that would carry the indenter through the points (tunnelling), is split in halves in time and
+    space alike, the second half from the first's state and velocity, down to 1 / 2^8 of the step.
+    """
+
+    def __init__(self, M: sp.csr_matrix, C: sp.csr_matrix, f_gravity: np.ndarray, omega_1: float):
+        self.M, self.C, self.f_gravity, self.omega_1 = M, C, f_gravity, omega_1
+        self.halvings = 0
+        self._added: dict = {}
+
+    @classmethod
+    def from_scene(cls, scene, body, settings, steps) -> "_Inertia":
+        from fem import dynamics
+        from fem.geometry import RodArray
+        from fem.rod_kinematics import euler_load_n
+        from mlsim.errors import Problem, SceneError
+
+        g = RodArray.from_sensor(scene.sensor)
+        regions = ("absorber", "ml_layer", "core")
+        young = [scene.material(r).young_modulus_pa.value for r in regions]
+        rho = [float(scene.material(r).density_kg_m3.value or 0.0) for r in regions]
+        if min(rho) <= 0:
+            raise SceneError([Problem("sensor.materials", [scene.material(r).name for r in regions],
+                                      "fidelity.solve.dynamics needs every layer's density; a material without one cannot move dynamically")])
+        bending = euler_load_n(g.rod_radius_m, g.rod_height_m, young, [g.absorber_m, g.ml_m]) * 4.0 * g.rod_height_m**2 / np.pi**2
+        outer = g.rod_radius_m - np.array([0.0, g.absorber_m, g.absorber_m + g.ml_m])
+        inner = np.append(outer[1:], 0.0).clip(min=0.0)
+        per_length = float(np.sum(np.asarray(rho) * np.pi * (outer.clip(min=0.0) ** 2 - inner**2)))
+        omega_1 = dynamics.cantilever_first_mode_rad_s(bending, per_length, g.rod_height_m)
+        dt = float(np.max(np.diff(np.concatenate([[0.0], steps]))))
+        period = 2.0 * np.pi / omega_1
+        if dt > period / settings.steps_per_period:
+            need = int(np.ceil(settings.substeps * dt * settings.steps_per_period / period))
+            raise SceneError([Problem("fidelity.solve.substeps", settings.substeps,
+                                      f"a {dt * 1e3:.3g} ms step cannot resolve the rods' first bending mode ({1.0 / period:.0f} Hz, "
+                                      f"{period * 1e3:.3g} ms; fidelity.solve.steps_per_period = {settings.steps_per_period:g}): "
+                                      f"set substeps to {need} or more, or dynamics to \"quasi_static\"")])
+        M = dynamics.mass_matrix(body.d, body.rho)
+        _, K0 = residual_and_tangent(body.d, np.zeros(body.n_dofs), body.lam, body.mu)
+        C = dynamics.rayleigh_damping(M, K0, 0.0, settings.loss_factor / omega_1, body.d.n_u)
+        return cls(M, C, body.f_gravity, omega_1)
+
+    def set(self, problem: "_Problem", x: np.ndarray, v: np.ndarray, dt: float) -> None:
+        """Put the step from (x, v) of size dt into the problem."""
+        key = round(dt, 15)
+        if key not in self._added:
+            self._added[key] = (self.M / dt**2 + self.C / dt).tocsr()
+        free = problem.free
+        f = self.f_gravity + self.M @ (x + dt * v) / dt**2 + self.C @ x / dt
+        r_int, _ = residual_and_tangent(problem.d, x, problem.body.lam, problem.body.mu, with_tangent=False)
+        scale = max(float(np.linalg.norm(self.f_gravity[free])), float(np.linalg.norm(r_int[free])))
+        problem.set_inertia(self._added[key], f, scale, key)
+
+    def advance(self, problem: "_Problem", x, v, pstate, pose_old: Pose, pose: Pose, dt: float, case: str, depth: int = 8):
+        """The state (x, v, law) a step of size dt later, the indenter moving from pose_old to pose."""
+        from fem.continuation import midpoint
+
+        if not problem.jumps(pose, pstate) or depth <= 0:
+            self.set(problem, x, v, dt)
+            try:
+                x1, law = problem.path(x + dt * v, pose, pose_old, pstate, case, depth=0)
+                return x1, (x1 - x) / dt, law
+            except SolverError:
+                if depth <= 0:
+                    raise
+        self.halvings += 1
+        mid = midpoint(pose_old, pose)
+        xa, va, law_a = self.advance(problem, x, v, pstate, pose_old, mid, 0.5 * dt, case, depth - 1)
+        pa = condensed.PointState(problem.point_u(xa), law_a.f_t.copy())
+        return self.advance(problem, xa, va, pa, mid, pose, 0.5 * dt, case, depth - 1)
 
 
 def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
@@ -558,12 +672,26 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
     bar = _bar(progress, S, "solve (nonlinear)")
     normal_now = 0.0
     x_last, last_move = None, None
+    inertia = _Inertia.from_scene(scene, body, settings, steps) if settings.dynamics != "quasi_static" else None
+    v, t_prev = np.zeros(body.n_dofs), 0.0
+    if inertia is not None:
+        timings["rod_first_mode_hz"] = inertia.omega_1 / (2.0 * np.pi)
     t_loop = time.perf_counter()
     for s, t in enumerate(steps):
         state = trajectory.advance(load, state, t, normal_now)
         case = f"step {s} (t = {t * 1e3:.1f} ms)"
         before = problem.iterations
-        if state.force_target_n is None:
+        dynamic = inertia is not None and t > t_prev
+        if inertia is not None and not dynamic:  # the episode's first step, at the start time: an equilibrium
+            problem.set_inertia(None, body.f_gravity, None, None)
+        if dynamic:
+            x_prev = x
+            if state.force_target_n is None:
+                pose = Pose(tuple(state.position_m), state.yaw_rad)
+                x, v, law = inertia.advance(problem, x, v, pstate, pose_old, pose, t - t_prev, case)
+            else:
+                inertia.set(problem, x, v, t - t_prev)
+        elif state.force_target_n is None:
             pose = Pose(tuple(state.position_m), state.yaw_rad)
             move = np.array([*pose.position_m, pose.yaw_rad]) - np.array([*pose_old.position_m, pose_old.yaw_rad])
             guess = x
@@ -572,18 +700,21 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
             x_before = x
             x, law = problem.path(guess, pose, pose_old, pstate, case)
             x_last, last_move = x_before, move
-        else:
+        if state.force_target_n is not None:
             z_free = tip_z + 1e-4 + float(np.abs(pstate.u[:, 2]).max())
 
             def at_z(z, x_start=x):
                 p = Pose((state.position_m[0], state.position_m[1], z), state.yaw_rad)
-                xz, lz = problem.path(x_start, p, pose_old, pstate, case)
+                xz, lz = problem.path(x_start, p, pose_old, pstate, case, depth=0 if dynamic else 8)
                 return condensed.normal_force(lz), (xz, lz, p)
 
             z, (x, law, pose), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case)
             x_last = None
             state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
             target[s] = state.force_target_n
+            if dynamic:
+                v = (x - x_prev) / (t - t_prev)
+        t_prev = t
         pstate = condensed.PointState(problem.point_u(x), law.f_t.copy())
         pose_old = pose
         forces[s] = law.f
@@ -595,14 +726,17 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
         stress[s], sed[s] = sig, w
         disp[s] = x[body.vertex_dofs.ravel()].reshape(-1, 3)
         r_int, _ = residual_and_tangent(body.d, x, body.lam, body.mu, with_tangent=False)
-        # the clamp's force on the body: minus the body's unbalanced force at the fixed DOFs
-        unbalanced = (r_int - problem.f_ext - points.W @ law.f.ravel())[body.fixed]
+        # the clamp's force on the body: minus the body's unbalanced force at the fixed DOFs (with dynamics, less the
+        # inertia of the consistent mass's clamp rows, which is left out)
+        unbalanced = (r_int - body.f_gravity - points.W @ law.f.ravel())[body.fixed]
         reaction[s] = [unbalanced[comp_fixed == c].sum() for c in range(3)]
         bar(s + 1)
     timings["contact_steps"] = time.perf_counter() - t_loop
     timings["tangent_factorisations"] = problem.factorisations + problem.linearisations
     timings["contact_iterations"] = problem.contact_iterations
     timings["penalty_newton_steps"] = problem.fallbacks
+    if inertia is not None:
+        timings["dynamic_step_halvings"] = inertia.halvings
     timings["preconditioned_directions"] = problem.inner_solves
     timings["fields"] = 0.0
     timings["per_frame_ms"] = 1e3 * timings["contact_steps"] / grid.n_frames

@@ -537,6 +537,19 @@ class SolveFidelity(_Model):
     # tilted tip face) to the contact kinematics and the displacement output, and the P-delta load of
     # their axial contact force (fem.rod_kinematics); "first_order": the plain small-strain body
     rod_kinematics: Literal["first_order", "second_order"] = "first_order"
+    # nonlinear tier: "quasi_static" (each step an equilibrium: no answer past a limit point, where a rod
+    # buckles or snaps back) or "backward_euler" (implicit dynamics with the elastomer's inertia and damping,
+    # energy-stable at any step; fem.dynamics, fem.finite_strain): the swipe that buckles rods and releases them
+    dynamics: Literal["quasi_static", "backward_euler"] = "quasi_static"
+    # dynamics: the elastomer's loss factor eta (not given in SPEC 1.2; 0.1, the middle of unfilled silicone
+    # rubbers' 0.05-0.2 at room temperature and audio frequencies, Nashif, Jones and Henderson, "Vibration
+    # Damping", Wiley 1985, ch. 3): stiffness-proportional Rayleigh damping with the damping ratio eta / 2 at
+    # the rods' first bending mode, rising in proportion to frequency above it
+    loss_factor: Annotated[float, Strict(), Field(ge=0.0, le=2.0)] = 0.1
+    # dynamics: the least number of steps per period of the rods' first bending mode (fem.dynamics.
+    # cantilever_first_mode_rad_s); a coarser step is refused naming substeps (backward Euler damps a mode it
+    # steps over: at 4 steps a period it keeps 54 % of the mode's amplitude a step, the snap-back's light goes)
+    steps_per_period: Annotated[float, Strict(), Field(ge=1.0, le=1000.0)] = 4.0
 
 
 class RenderFidelity(_Model):

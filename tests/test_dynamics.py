@@ -17,7 +17,7 @@ from beam_helpers import buckling_load, square_beam
 from scipy.optimize import brentq
 from scipy.special import ellipe, ellipk
 
-from fem.dynamics import DynamicState, integrate, mass_matrix, rayleigh_damping, rayleigh_ratio, strain_energy_j, time_integrator
+from fem.dynamics import DynamicState, cantilever_first_mode_rad_s, integrate, mass_matrix, rayleigh_damping, rayleigh_ratio, strain_energy_j, time_integrator
 from fem.elasticity import assemble, solve_static
 from fem.materials.linear_elastic import lame_parameters
 from fem.nonlinear import residual_and_tangent, solve_nonlinear
@@ -25,7 +25,6 @@ from fem.nonlinear import residual_and_tangent, solve_nonlinear
 SIDE, LENGTH = 1e-3, 20e-3
 YOUNG, POISSON, DENSITY = 1.5e6, 0.49, 1100.0
 LAM, MU = lame_parameters(YOUNG, POISSON)
-BETA1 = 1.8751040687  # first root of cos b cosh b = -1: the clamped-free beam's first mode
 
 
 class Beam:
@@ -34,7 +33,7 @@ class Beam:
         self.K0 = assemble(self.d, LAM, MU)
         self.ei = LENGTH**3 / (3.0 * self.tip(solve_static(self.K0, self.lateral, self.fixed))[0])  # the mesh's EI
         self.M = mass_matrix(self.d, DENSITY)
-        self.omega_beam = BETA1**2 * math.sqrt(self.ei / (DENSITY * SIDE**2 * LENGTH**4))
+        self.omega_beam = cantilever_first_mode_rad_s(self.ei, DENSITY * SIDE**2, LENGTH)
         self.period = 2.0 * math.pi / self.omega_beam
 
     def omega_mesh(self) -> float:
