@@ -56,7 +56,7 @@ from fem.indenters import Pose
 from fem.indenters import gap as indenter_gap
 from fem.nonlinear import SolverError, residual_and_tangent
 
-__all__ = ["run_nonlinear_episode", "centroid_fields"]
+__all__ = ["run_nonlinear_episode", "centroid_fields", "rod_first_mode_rad_s", "dynamics_step_problems"]
 
 # Newton directions by GMRES on the tangent, preconditioned by an earlier factorised body tangent with
 # the current contact tangent taken exactly (ContactWoodbury): to this true relative residual (an inexact
@@ -537,6 +537,46 @@ class CondensedBody:
         problem.linearisations += 1
 
 
+def rod_first_mode_rad_s(scene) -> float:
+    """The first bending mode (rad/s) of the scene's rods: a clamped-free Euler-Bernoulli beam
+    (:func:`fem.dynamics.cantilever_first_mode_rad_s`) with the layered section's EI
+    (:func:`fem.rod_kinematics.euler_load_n`) and its layers' mass per length."""
+    from fem import dynamics
+    from fem.geometry import RodArray
+    from fem.rod_kinematics import euler_load_n
+
+    g = RodArray.from_sensor(scene.sensor)
+    regions = ("absorber", "ml_layer", "core")
+    young = [scene.material(r).young_modulus_pa.value for r in regions]
+    rho = np.array([float(scene.material(r).density_kg_m3.value or 0.0) for r in regions])
+    bending = euler_load_n(g.rod_radius_m, g.rod_height_m, young, [g.absorber_m, g.ml_m]) * 4.0 * g.rod_height_m**2 / np.pi**2
+    outer = g.rod_radius_m - np.array([0.0, g.absorber_m, g.absorber_m + g.ml_m])
+    inner = np.append(outer[1:], 0.0).clip(min=0.0)
+    per_length = float(np.sum(rho * np.pi * (outer.clip(min=0.0) ** 2 - inner**2)))
+    return dynamics.cantilever_first_mode_rad_s(bending, per_length, g.rod_height_m)
+
+
+def dynamics_step_problems(scene) -> list[tuple]:
+    """[(field, value, fix)] of a scene whose nonlinear dynamics cannot run: a layer without a density,
+    or a step (1 / (fps x substeps)) longer than the rods' first bending period over
+    ``fidelity.solve.steps_per_period`` (the sensor kind's check: ``mlsim check`` says it before a run)."""
+    f = scene.fidelity.solve
+    if f.tier != "nonlinear" or f.dynamics == "quasi_static" or scene.load is None:
+        return []
+    regions = ("absorber", "ml_layer", "core")
+    if any(not (scene.material(r).density_kg_m3.value or 0.0) > 0 for r in regions):
+        return [("sensor.materials", [getattr(scene.sensor.materials, r) for r in regions],
+                 "fidelity.solve.dynamics needs every layer's density (materials.NAME.density_kg_m3)")]
+    period = 2.0 * np.pi / rod_first_mode_rad_s(scene)
+    dt = 1.0 / (scene.camera.fps * f.substeps)
+    if dt <= period / f.steps_per_period * (1.0 + 1e-9):
+        return []
+    need = int(np.ceil(f.substeps * dt * f.steps_per_period / period))
+    return [("fidelity.solve.substeps", f.substeps,
+             f"a {dt * 1e3:.3g} ms step cannot resolve the rods' first bending mode ({1.0 / period:.0f} Hz, {period * 1e3:.3g} ms; "
+             f"fidelity.solve.steps_per_period = {f.steps_per_period:g}): set substeps to {need} or more, or dynamics to \"quasi_static\"")]
+
+
 class _Inertia:
     """Backward Euler's inertia and damping for the nonlinear tier's steps (``fidelity.solve.dynamics``).
 
@@ -560,30 +600,12 @@ class _Inertia:
     @classmethod
     def from_scene(cls, scene, body, settings, steps) -> "_Inertia":
         from fem import dynamics
-        from fem.geometry import RodArray
-        from fem.rod_kinematics import euler_load_n
         from mlsim.errors import Problem, SceneError
 
-        g = RodArray.from_sensor(scene.sensor)
-        regions = ("absorber", "ml_layer", "core")
-        young = [scene.material(r).young_modulus_pa.value for r in regions]
-        rho = [float(scene.material(r).density_kg_m3.value or 0.0) for r in regions]
-        if min(rho) <= 0:
-            raise SceneError([Problem("sensor.materials", [scene.material(r).name for r in regions],
-                                      "fidelity.solve.dynamics needs every layer's density; a material without one cannot move dynamically")])
-        bending = euler_load_n(g.rod_radius_m, g.rod_height_m, young, [g.absorber_m, g.ml_m]) * 4.0 * g.rod_height_m**2 / np.pi**2
-        outer = g.rod_radius_m - np.array([0.0, g.absorber_m, g.absorber_m + g.ml_m])
-        inner = np.append(outer[1:], 0.0).clip(min=0.0)
-        per_length = float(np.sum(np.asarray(rho) * np.pi * (outer.clip(min=0.0) ** 2 - inner**2)))
-        omega_1 = dynamics.cantilever_first_mode_rad_s(bending, per_length, g.rod_height_m)
-        dt = float(np.max(np.diff(np.concatenate([[0.0], steps]))))
-        period = 2.0 * np.pi / omega_1
-        if dt > period / settings.steps_per_period:
-            need = int(np.ceil(settings.substeps * dt * settings.steps_per_period / period))
-            raise SceneError([Problem("fidelity.solve.substeps", settings.substeps,
-                                      f"a {dt * 1e3:.3g} ms step cannot resolve the rods' first bending mode ({1.0 / period:.0f} Hz, "
-                                      f"{period * 1e3:.3g} ms; fidelity.solve.steps_per_period = {settings.steps_per_period:g}): "
-                                      f"set substeps to {need} or more, or dynamics to \"quasi_static\"")])
+        problems = dynamics_step_problems(scene)
+        if problems:
+            raise SceneError([Problem(*p) for p in problems])
+        omega_1 = rod_first_mode_rad_s(scene)
         M = dynamics.mass_matrix(body.d, body.rho)
         _, K0 = residual_and_tangent(body.d, np.zeros(body.n_dofs), body.lam, body.mu)
         C = dynamics.rayleigh_damping(M, K0, 0.0, settings.loss_factor / omega_1, body.d.n_u)

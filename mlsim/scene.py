@@ -845,6 +845,11 @@ def check_consistency(scene: Scene) -> list[Problem]:
         )
     if mesh.resolved_envelope_mm >= min(s.layers.ml_mm, radius) and mesh.envelope_mm is not None:
         problems.append(Problem("fidelity.mesh.envelope_mm", mesh.envelope_mm, f"must be < the ML layer ({s.layers.ml_mm:g} mm)"))
+    if not problems:  # the kind's own checks (fem: the nonlinear tier's dynamics step) on an otherwise sound scene
+        from mlsim.stage import kind
+
+        check = kind(scene.kind).check
+        problems += [Problem(*p) for p in (check(scene) if check is not None else [])]
     return problems
 
 

@@ -47,10 +47,13 @@ def test_a_slow_press_with_dynamics_is_the_quasi_static_press(tiny_mesh):
 
 
 def test_a_step_too_coarse_for_the_rods_first_mode_is_refused(tiny_mesh):
-    scene, mesh = _scene(tiny_mesh, dynamics="backward_euler", substeps=2)
+    """By the scene's check (``mlsim check``, and on load), before any solve."""
     with pytest.raises(SceneError, match=r"fidelity.solve.substeps = 2: a 1.25 ms step cannot resolve the rods' first bending mode "
                                          r"\(323 Hz, 3.1 ms; fidelity.solve.steps_per_period = 4\): set substeps to 4 or more"):
-        finite_strain.run_nonlinear_episode(scene, mesh)
+        _scene(tiny_mesh, dynamics="backward_euler", substeps=2)
+    with pytest.raises(SceneError, match=r"fidelity.solve.substeps = 4: a 0.625 ms step .* set substeps to 7 or more"):
+        _scene(tiny_mesh, dynamics="backward_euler", substeps=4, steps_per_period=8.0)
+    _scene(tiny_mesh, dynamics="backward_euler", substeps=4)  # 0.625 ms: 5 steps a period
 
 
 def test_a_negative_loss_factor_is_refused_by_name(tiny_mesh):
@@ -61,7 +64,7 @@ def test_a_negative_loss_factor_is_refused_by_name(tiny_mesh):
 
 
 def test_the_settings_carry_the_scene_dynamics(tiny_mesh):
-    scene, _ = _scene(tiny_mesh, dynamics="backward_euler", loss_factor=0.2, steps_per_period=8.0)
+    scene, _ = _scene(tiny_mesh, dynamics="backward_euler", loss_factor=0.2, steps_per_period=8.0, substeps=8)
     settings = qs.SolveSettings.from_scene(scene)
     assert (settings.dynamics, settings.loss_factor, settings.steps_per_period) == ("backward_euler", 0.2, 8.0)
     assert dataclasses.replace(settings, dynamics="quasi_static").dynamics == "quasi_static"
