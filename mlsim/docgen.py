@@ -317,10 +317,10 @@ def validation_reference() -> str:
 
 #: benchmarks that ``make bench`` leaves out (each over ~10 minutes on 2 cores, or needs a GPU): run them by name.
 SLOW_BENCHMARKS: dict[str, str] = {
-    "bench_dataset.py": "the paper-sized dataset (800 episodes) and the CNN's training: hours on 2 cores",
+    "bench_dataset.py": "the paper-sized dataset (800 episodes; its target is under 15 min on 2 cores) and the CNNs' training",
     "bench_sweep.py": "the 5-point height sweep from an empty cache: 9-15 min on 2 cores, mostly fTetWild",
-    "direction_scatter.py": "the direction study rerun once per cause of scatter: many path-traced episodes",
-    "bench_solvers.py": "every sparse solver on the default sensor's matrices, some of them slow by design",
+    "direction_scatter.py": "the direction study rerun once per cause of scatter (each a full study)",
+    "bench_solvers.py": "every sparse solver on the default sensor's matrices, each in its own process: about 6.5 min",
     "bench_render_device.py": "the path tier on an NVIDIA GPU against the CPU (benchmarks/device/)",
     "calibrate_brightness.py": "reproduces emission.brightness_photons_per_m2 (a calibration, not a timing)",
 }

@@ -178,13 +178,15 @@ def test_generated_pages_name_what_they_must():
     cli = cli_reference()
     assert all(f"## `mlsim {v}`" in cli for v in ("run", "check", "dataset", "sweep", "train", "anyskin-train"))
     tests = sorted(p.name for p in (ROOT / "tests").glob("test_*.py"))
-    assert all(f"`{t}`" in validation_reference() for t in tests)
+    validation = validation_reference()
+    assert all(f"`{t}`" in validation for t in tests)
     bench = benchmarks_reference()
     scripts = sorted(p.name for p in (ROOT / "benchmarks").glob("*.py"))
     assert all(f"`{s}`" in bench for s in scripts) and set(SLOW_BENCHMARKS) <= set(scripts)
     from mlsim.dataset.store import EPISODE_ARRAYS
 
-    assert all(f"| `{name}` |" in dataset_reference() for name in EPISODE_ARRAYS)
+    dataset = dataset_reference()
+    assert all(f"| `{name}` |" in dataset for name in EPISODE_ARRAYS)
 
 
 def test_site_navigation_names_pages_that_exist():
