@@ -24,3 +24,10 @@ def on_files(files, config):
     for path, maker in GENERATED.items():
         files.append(File.generated(config, path, content=getattr(docgen, maker)()))
     return files
+
+
+def on_page_markdown(markdown, page, config, files):
+    """``<!-- measured: NAME -->`` on a page becomes the table of a recorded output (mlsim.docgen.RECORDINGS)."""
+    from mlsim import docgen
+
+    return docgen.expand_measured(markdown)

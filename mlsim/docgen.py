@@ -8,7 +8,10 @@ that they never drift from the code:
   allowed range or choices, and the comment written beside the field in the source;
 - :func:`outputs_reference` - per sensor kind, the products ``outputs`` may name (its stages with a
   writer), what each reads and needs;
-- :func:`cli_reference` - every ``mlsim`` verb's ``--help``, examples included.
+- :func:`cli_reference` - every ``mlsim`` verb's ``--help``, examples included;
+- the dataset schema, the validation page (the test modules) and the benchmarks page (the scripts);
+- :func:`expand_measured` - measured figures on the stage pages as tables made from a command's
+  recorded output in ``docs/data/`` (:data:`RECORDINGS`: the file, the command, when), not typed.
 
 :func:`scene_fields` is the list the scene reference is made of; ``tests/test_docs.py`` checks that
 it covers every field of every model, recursively.
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import inspect
 import io
+import re
 import textwrap
 import tokenize
 import types
@@ -31,7 +35,8 @@ from pydantic_core import PydanticUndefined
 from mlsim.units import DIMENSIONLESS, unit_of
 
 __all__ = ["FieldDoc", "scene_fields", "scene_reference", "outputs_reference", "cli_reference", "dataset_reference", "validation_reference",
-           "benchmarks_reference", "fast_benchmarks", "field_comments", "SLOW_BENCHMARKS"]
+           "benchmarks_reference", "fast_benchmarks", "field_comments", "SLOW_BENCHMARKS", "Recording", "RECORDINGS", "measured",
+           "expand_measured", "accuracy_solve_table"]
 
 
 @dataclass(frozen=True)
@@ -362,3 +367,65 @@ def dataset_reference() -> str:
               "displacement, the peak normal force and the stages' seconds.", "",
               "## The dataset spec", "", _table(scene_fields(DatasetSpec)), ""]
     return "\n".join(lines)
+
+
+# --- measured figures: tables made from recorded outputs, not typed by hand ---------------------
+@dataclass(frozen=True)
+class Recording:
+    """An output file of a command, kept in ``docs/data/`` and shown on a page as a table."""
+
+    file: str  # under docs/data/
+    command: str  # the command that wrote it (its output folder renamed)
+    measured: str  # when and on what, e.g. "2026-11-27, 2 shared cores"
+
+
+#: name -> recording; a page shows one where it writes ``<!-- measured: NAME -->``.
+RECORDINGS: dict[str, Recording] = {
+    "accuracy_solve_tiny": Recording(
+        "accuracy_solve_tiny.csv", "mlsim accuracy scenes/mavig_tiny.toml --stage solve --edges 3.0 2.5",
+        "2026-11-27, 2 cores shared with other work (load average about 10): costs are upper bounds"),
+}
+
+_MARKER = re.compile(r"<!-- measured: ([\w-]+) -->")
+
+
+def accuracy_solve_table(rows: list[dict]) -> str:
+    """``accuracy_solve.csv`` rows (as read by :class:`csv.DictReader`) as a Markdown table: each
+    configuration's cost and its errors against the reference (``*``: on the Pareto front)."""
+    errors = [k[len("error_"):] for k in rows[0] if k.startswith("error_")] if rows else []
+    head = ["edge mm", "order", "tier", "tets", "ms/frame", *[e.replace("_", " ") for e in errors]]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        if r.get("failed"):
+            lines.append(f"| {r['edge_length_mm']} | {r['element_order']} | {r['tier']} | failed: {r['failed']} |" + " |" * (len(head) - 4))
+            continue
+        errs = ["reference" if r["reference"] == "True" else f"{float(r['error_' + e]):.2e}{'*' if r['pareto_' + e] == 'True' else ''}"
+                for e in errors]
+        lines.append(f"| {r['edge_length_mm']} | {r['element_order']} | {r['tier']} | {r['n_tets']} | {float(r['per_frame_ms']):.3g} | "
+                     + " | ".join(errs) + " |")
+    return "\n".join(lines)
+
+
+def measured(name: str, data_dir=None) -> str:
+    """The Markdown a ``<!-- measured: NAME -->`` marker stands for: the recording's table, the command
+    that reproduces it and when it was measured."""
+    import csv
+
+    rec = RECORDINGS[name]
+    path = (data_dir or _root() / "docs" / "data") / rec.file
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return (f"{accuracy_solve_table(rows)}\n\n*Measured {rec.measured}; reproduce with `{rec.command}` "
+            f"(`docs/data/{rec.file}` is its `accuracy_solve.csv`; `*`: on the Pareto front of cost against that error).*")
+
+
+def expand_measured(markdown: str) -> str:
+    """A page's Markdown with each ``<!-- measured: NAME -->`` replaced by :func:`measured`; an unknown
+    name raises a ``KeyError`` that lists the known ones (a strict build must not show a stale marker)."""
+
+    def one(match) -> str:
+        if match.group(1) not in RECORDINGS:
+            raise KeyError(f"<!-- measured: {match.group(1)} -->: no such recording; known: {', '.join(RECORDINGS)}")
+        return measured(match.group(1))
+
+    return _MARKER.sub(one, markdown)

@@ -198,3 +198,29 @@ def test_site_navigation_names_pages_that_exist():
     assert len(pages) >= 20 and missing == []
     links = re.findall(r"\]\((docs/[^)#]+)", README.read_text())
     assert links and [link for link in links if not (ROOT / link).is_file()] == []
+
+
+def test_measured_tables_come_from_recorded_outputs():
+    """Figures on the stage pages are tables made from a command's recorded output (docs/data), each
+    with the command that reproduces it: every marker names a recording, every recording is shown."""
+    import csv
+
+    from mlsim.docgen import RECORDINGS, accuracy_solve_table, expand_measured
+
+    pages = "\n".join(p.read_text() for p in (ROOT / "docs").rglob("*.md"))
+    markers = set(re.findall(r"<!-- measured: ([\w-]+) -->", pages))
+    assert markers == set(RECORDINGS)
+    for name, rec in RECORDINGS.items():
+        with open(ROOT / "docs" / "data" / rec.file, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        text = expand_measured(f"<!-- measured: {name} -->")
+        assert text.count("\n|") == len(rows) + 1 and rec.command in text  # header rule + one line per configuration
+        assert sum(r["reference"] == "True" for r in rows) == 1 and " | reference |" in text
+    with pytest.raises(KeyError, match="no such recording"):
+        expand_measured("<!-- measured: nope -->")
+    rows = [{"edge_length_mm": "3", "element_order": "2", "tier": "linear", "n_tets": "10", "per_frame_ms": "1.5", "reference": "False",
+             "error_force": "0.0123", "pareto_force": "True", "failed": ""},
+            {"edge_length_mm": "2", "element_order": "2", "tier": "nonlinear", "n_tets": "20", "per_frame_ms": "900", "reference": "True",
+             "error_force": "0", "pareto_force": "False", "failed": ""}]
+    table = accuracy_solve_table(rows).splitlines()
+    assert table[2] == "| 3 | 2 | linear | 10 | 1.5 | 1.23e-02* |" and table[3].endswith("| 900 | reference |")
