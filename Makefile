@@ -15,25 +15,28 @@ PYTEST_ARGS ?=
 # `make test PYTEST_PROCS=0` runs it in one process.
 PYTEST_PROCS ?= 2
 
-.PHONY: demo test test-slow bench llvm venv clean
+.PHONY: demo test test-slow bench docs llvm venv clean
 
 demo: $(STAMP)
 	$(VENV)/bin/mlsim run scenes/mavig_default.toml --out out/demo
 
 test: $(STAMP)
 	$(PY) -m pytest -n $(PYTEST_PROCS) --dist loadfile $(PYTEST_ARGS)
+	$(MAKE) --no-print-directory docs
+
+# the documentation site into site/ (a warning fails it; about 15 s): docs/, mkdocs.yml, and the
+# pages generated from the code (docs/hooks.py -> mlsim.docgen)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict --quiet
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -m slow $(PYTEST_ARGS)
 
+# every benchmark but the slow ones (mlsim.docgen.SLOW_BENCHMARKS, each with its reason), which it lists
 bench: $(STAMP)
-	$(PY) benchmarks/bench_mesh.py
-	$(PY) benchmarks/bench_tiers.py
-	$(PY) benchmarks/bench_camera.py
-	$(PY) benchmarks/bench_render.py
-	$(PY) benchmarks/bench_spectral.py
-	$(PY) benchmarks/ambient_study.py
-	$(PY) benchmarks/bench_dllm.py
+	@for f in $$($(PY) -c "from mlsim.docgen import fast_benchmarks; print(*fast_benchmarks())"); do \
+		echo "== benchmarks/$$f"; $(PY) benchmarks/$$f || exit 1; done
+	@$(PY) -c "from mlsim.docgen import SLOW_BENCHMARKS as S; print('not run (slow; run each by name):'); print(*(f'  benchmarks/{k}: {v}' for k, v in S.items()), sep='\n')"
 
 venv: $(STAMP)
 
@@ -41,8 +44,8 @@ $(STAMP): pyproject.toml | llvm
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PIP) install --upgrade pip setuptools wheel 2>&1 | grep -v "is ignored" || true
 	$(PIP) install "$(TORCH)" 2>&1 | grep -v "is ignored" || true
-	$(PIP) install -e ".[test,ray]" 2>&1 | grep -v "is ignored" || true
-	$(PY) -c "import torch, mitsuba, pytetwild, trimesh, manifold3d, meshio, pydantic, colour, cv2, kornia, skfem, zarr, ray, threadpoolctl, numba, xdist; assert torch.__version__.startswith('2.13.0'), torch.__version__"
+	$(PIP) install -e ".[test,ray,docs]" 2>&1 | grep -v "is ignored" || true
+	$(PY) -c "import torch, mitsuba, pytetwild, trimesh, manifold3d, meshio, pydantic, colour, cv2, kornia, skfem, zarr, ray, threadpoolctl, numba, xdist, mkdocs, material, mkdocstrings_handlers.python; assert torch.__version__.startswith('2.13.0'), torch.__version__"
 	touch $(STAMP)
 
 # Mitsuba's CPU (llvm_*) variants need libLLVM 17 or newer: 14-16 are too old or crash inside the
@@ -63,4 +66,4 @@ llvm:
 	fi
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) out site .pytest_cache

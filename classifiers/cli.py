@@ -4,7 +4,7 @@
 (0 success, 2 bad input: the message names the field). Datasets are read with
 ``mlsim.dataset.reader.load_episodes`` (imported when a command runs).
 
-    mlsim train DATASET --out DIR [--classes 8|4|both] [--seed N] [--epochs N] [--features distance,angle]
+    mlsim train DATASET --out DIR [--classes 8|4|both] [--seed N] [--epochs N] [--features distance,angle] [--workers N]
     mlsim evaluate DATASET --model FILE --out DIR [--people held-out|all|3,7]
     mlsim ablation DATASET --out DIR [--seed N] [--epochs N]
 """
@@ -84,6 +84,9 @@ def cmd_train(args) -> int:
     from classifiers.train import heldout_experiment, metrics_json, plot_confusion, plot_history, save_model
 
     fs = feature_set_of(args.features)
+    if args.dry_run:
+        return _dry_run(args, f"train the {args.classes}-class classifier(s) on {', '.join(fs)} with {args.workers} thread(s)",
+                        "out/interaction_train")
     episodes = _load_dataset(args.dataset)
     out = Path(args.out) if args.out else Path("out") / "interaction_train"
     log = _log(args)
@@ -92,7 +95,7 @@ def cmd_train(args) -> int:
     for k in classes:
         log(f"training the {k}-class classifier on {', '.join(fs)}")
         exp = heldout_experiment(episodes, k, fs, args.seed, held_out=_held_out(args.held_out), epochs=args.epochs,
-                                 batch_size=args.batch_size, lr=args.lr, stride=args.stride, n_threads=args.threads, log=log)
+                                 batch_size=args.batch_size, lr=args.lr, stride=args.stride, n_threads=args.workers, log=log)
         experiments[f"{k}class"] = exp
         tag = f"{k}class"
         written.append(save_model(exp.result, out / f"interaction_{tag}.pt"))
@@ -121,6 +124,10 @@ def cmd_evaluate(args) -> int:
 
     from classifiers.train import episodes_of_people, evaluate, load_model, plot_confusion
 
+    if args.dry_run:
+        if not Path(args.model).is_file():
+            raise ClassifierInputError(f"--model {args.model}: not found; train one with 'mlsim train'")
+        return _dry_run(args, f"score {args.model} (people: {args.people})", "out/interaction_evaluate")
     result = load_model(args.model)
     episodes = _load_dataset(args.dataset)
     if args.people == "held-out":
@@ -159,10 +166,12 @@ def cmd_ablation(args) -> int:
     from classifiers.train import ABLATION_FEATURE_SETS, ablation
 
     sets = [feature_set_of(s.replace("+", ",")) for s in args.sets] if args.sets else list(ABLATION_FEATURE_SETS)
+    if args.dry_run:
+        return _dry_run(args, f"train {2 * len(sets)} classifiers ({len(sets)} feature sets x 8 and 4 classes)", "out/interaction_ablation")
     episodes = _load_dataset(args.dataset)
     out = Path(args.out) if args.out else Path("out") / "interaction_ablation"
     rows = ablation(episodes, sets, seed=args.seed, held_out=_held_out(args.held_out), out_dir=out, log=_log(args),
-                    epochs=args.epochs, stride=args.stride, n_threads=args.threads)
+                    epochs=args.epochs, stride=args.stride, n_threads=args.workers)
     print(f"{'feature set':<20} {'channels':>8} {'8 classes':>10} {'4 classes':>10} {'train s':>8}")
     for r in rows:
         print(f"{r.name:<20} {r.n_channels:>8d} {100 * r.accuracy_8:>8.2f} % {100 * r.accuracy_4:>8.2f} % "
@@ -171,39 +180,56 @@ def cmd_ablation(args) -> int:
     return EXIT_OK
 
 
+def _dry_run(args, what: str, out_default: str) -> int:
+    """``--dry-run``: the dataset's stored episodes and what the command would do with them; nothing is trained."""
+    from mlsim.dataset.store import complete_episodes
+
+    if not Path(args.dataset).exists():
+        raise ClassifierInputError(f"DATASET {args.dataset}: not found; make one with 'mlsim dataset'")
+    episodes = complete_episodes(args.dataset)
+    if not episodes:
+        raise ClassifierInputError(f"DATASET {args.dataset}: holds no episodes")
+    print(f"would {what} on {len(episodes)} episodes of {args.dataset}; writes to {args.out or out_default}")
+    return EXIT_OK
+
+
 def add_parsers(subparsers) -> None:
     """Add ``train``, ``evaluate`` and ``ablation`` to an argparse sub-parsers object (``func`` = handler)."""
+    import argparse
 
-    def common(p, training: bool = True):
-        p.add_argument("dataset", help="dataset of episodes (read by mlsim.dataset.reader.load_episodes)")
-        p.add_argument("--quiet", action="store_true", help="no log lines")
+    from mlsim.cli_grammar import Formatter, add_shared, examples_epilog
+
+    def parser(name: str, help: str):
+        return subparsers.add_parser(name, help=help, description=help, epilog=examples_epilog(name), formatter_class=Formatter)
+
+    def common(p, name: str, training: bool = True):
+        p.add_argument("dataset", metavar="DATASET", help="dataset folder of 'mlsim dataset' (read by mlsim.dataset.reader.load_episodes)")
+        add_shared(p, name, out_default=f"out/interaction_{name}", workers_default=1,
+                   workers_help="torch CPU threads (default 1: the weights reproduce for one count)")
         p.add_argument("--stride", type=int, default=None if not training else DEFAULT_STRIDE,
                        help=f"frames between window starts (default {DEFAULT_STRIDE}" + ("" if training else ", the model's") + ")")
         if training:
             p.add_argument("--seed", type=int, default=0, help="seed of the people split, validation split, weights, batch order")
             p.add_argument("--epochs", type=int, default=40, help="most epochs (early stopping after 10 without improvement)")
             p.add_argument("--held-out", default="0.2", help="held-out people: a fraction (0.2 of 10 people = 2) or ids (3,7)")
-            p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1; results reproduce for one count)")
+            p.add_argument("--threads", dest="workers", type=int, default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # the old name of --workers
 
-    p = subparsers.add_parser("train", help="train the interaction classifier (SPEC 1.7) on held-in people, score the held-out")
-    common(p)
-    p.add_argument("--out", help="output directory (default out/interaction_train)")
+    p = parser("train", "train the interaction classifier (SPEC 1.7) on held-in people, score the held-out")
+    common(p, "train")
     p.add_argument("--classes", default="both", choices=["8", "4", "both"], help="8 interactions, the merged 4, or both")
     p.add_argument("--features", default="distance,angle", help="channels: comma-separated from intensity, distance, angle")
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
     p.set_defaults(func=cmd_train)
 
-    p = subparsers.add_parser("evaluate", help="score a trained interaction classifier on a dataset")
-    common(p, training=False)
+    p = parser("evaluate", "score a trained interaction classifier on a dataset")
+    common(p, "evaluate", training=False)
     p.add_argument("--model", required=True, help="model file written by 'mlsim train' (interaction_8class.pt)")
-    p.add_argument("--out", help="output directory (default out/interaction_evaluate)")
     p.add_argument("--people", default="held-out", help="held-out (the model's test people), all, or ids (3,7)")
     p.set_defaults(func=cmd_evaluate)
 
-    p = subparsers.add_parser("ablation", help="accuracy of each DLLM feature and pair (SPEC 1.7 ablation)")
-    common(p)
-    p.add_argument("--out", help="output directory (default out/interaction_ablation)")
+    p = parser("ablation", "accuracy of each DLLM feature and pair (SPEC 1.7 ablation)")
+    common(p, "ablation")
     p.add_argument("--sets", nargs="+", metavar="SET",
                    help="feature sets, e.g. intensity distance+angle (default: each feature and each pair)")
     p.set_defaults(func=cmd_ablation)

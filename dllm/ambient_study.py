@@ -2,7 +2,9 @@
 
 For each ambient setting (no lamp; the 50 W daylight lamp 1.5 m above, SPEC 1.1; the same with
 100 Hz mains flicker; the lamp switched on during the episode; and the three over a sensor without
-its absorber, where the lamp is some 1000 times brighter inside) the scene is simulated twice through the pipeline: the *interaction* episode (the scene's
+its absorber, where the lamp is some 1000 times brighter inside; first, the scene's own lamp when it has
+one, as in ``scenes/ambient.toml``; each other setting starts from the scene's ``[ambient]`` reset:
+:func:`setting_scenes`) the scene is simulated twice through the pipeline: the *interaction* episode (the scene's
 load) and an *idle* episode (the same frames without ML light: sensor noise and the lamp). The DLLM
 then runs on both for every (alpha, beta) of a grid, each time after its 1 s of idle frames before
 the episode (:mod:`dllm.episode`). The camera frames depend on the lamp, not on the thresholds, so
@@ -32,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["DEFAULT_SETTINGS", "AmbientRow", "ambient_study", "write"]
+__all__ = ["DEFAULT_SETTINGS", "SCENE_SETTING", "AmbientRow", "ambient_study", "setting_scenes", "write"]
 
 #: name -> scene overrides of each ambient setting.
 DEFAULT_SETTINGS: dict[str, dict] = {
@@ -49,6 +51,22 @@ DEFAULT_SETTINGS: dict[str, dict] = {
     "daylight 50 W, no absorber, switched on at 0.2 s": {"ambient.lamp": "daylight", "ambient.power_w": 50.0, "ambient.height_m": 1.5,
                                                          "optics.absorber": "none", "ambient.switch_on_s": 0.2},
 }
+
+
+#: the name of the setting that is the scene's own lamp (``[ambient]`` of a scene such as scenes/ambient.toml).
+SCENE_SETTING = "the scene's lamp"
+
+
+def setting_scenes(scene, settings: dict | None = None) -> dict:
+    """``{setting name: scene}``: each setting applied to the scene with its ``[ambient]`` reset, so that a
+    setting's lamp is exactly the one it names (a scene's flicker or switching does not leak into the
+    steady "daylight 50 W"). With the default settings, a scene that has a lamp of its own adds it first,
+    as it is (:data:`SCENE_SETTING`)."""
+    chosen = DEFAULT_SETTINGS if settings is None else settings
+    out = {SCENE_SETTING: scene} if settings is None and scene.ambient.lamp != "none" else {}
+    for name, overrides in chosen.items():
+        out[name] = scene.with_values({"ambient": {}, **overrides})
+    return out
 
 
 @dataclass
@@ -91,11 +109,9 @@ def ambient_study(scene, settings: dict | None = None, alphas=(1.01, 1.02, 1.05,
 
     if scene.load is None:
         raise ValueError("load: the ambient study needs a scene with a [load] section (its interaction episode)")
-    settings = DEFAULT_SETTINGS if settings is None else settings
     rows: list[AmbientRow] = []
-    for name, overrides in settings.items():
+    for name, s in setting_scenes(scene, settings).items():
         log(f"[ambient] {name}")
-        s = scene.with_values(overrides)
         cam, idle, pre, cal_rgb = _frames(s, cache, progress, idle_s)
         cal, rod_of_taxel = calibrate_scene(s, cal_rgb)
         signal = cam.rod_signal_e  # (T, R) noiseless ML signal per rod

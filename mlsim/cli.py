@@ -1,4 +1,9 @@
-"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | sweep | train | evaluate | ablation``.
+"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | sweep | train | evaluate | ablation |
+anyskin-train``, and ``mlsim --version``.
+
+One grammar (:mod:`mlsim.cli_grammar`): the scene (or spec, or dataset) first, then the shared flags
+``--set``, ``--dry-run``, ``--out``, ``--workers``, ``--cache``, ``--quiet`` where they make sense, with
+the same defaults; every verb's ``--help`` ends with examples.
 
 Exit codes: 0 success, 2 bad input (an invalid scene or argument; the message names the field),
 1 failure (a stage could not finish; the message says what to try). Unexpected errors are bugs:
@@ -8,57 +13,15 @@ they print a traceback and exit 1.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import tomllib
 from pathlib import Path
 
+from mlsim.cli_grammar import EXAMPLES, Formatter, add_shared, examples_epilog
+from mlsim.cli_grammar import parse_sets as _parse_sets
 from mlsim.errors import MlsimError, Problem, SceneError
+from mlsim.units import unit_of
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
-
-_UNITS = (
-    ("_kg_m3", "kg/m^3"),
-    ("_mm_s", "mm/s"),
-    ("_deg_s", "deg/s"),
-    ("_mm2", "mm^2"),
-    ("_wt_pct", "wt%"),
-    ("_mm", "mm"),
-    ("_um", "um"),
-    ("_ms", "ms"),
-    ("_pa", "Pa"),
-    ("_deg", "deg"),
-    ("_px", "px"),
-    ("_db", "dB"),
-    ("_n", "N"),
-    ("_w", "W"),
-    ("_m", "m"),
-    ("_s", "s"),
-)
-
-
-def _unit(path: str) -> str:
-    leaf = path.rsplit(".", 1)[-1].split("[")[0]
-    for suffix, unit in _UNITS:
-        if leaf.endswith(suffix):
-            return unit
-    return ""
-
-
-def _parse_sets(items: list[str] | None) -> dict:
-    """``--set sensor.rod.height_mm=12`` -> {"sensor.rod.height_mm": 12} (values parsed as TOML)."""
-    out = {}
-    for item in items or []:
-        if "=" not in item:
-            raise SceneError([Problem("--set", item, "expected DOTTED.PATH=VALUE, e.g. sensor.rod.height_mm=12")])
-        key, _, raw = item.partition("=")
-        try:
-            value = tomllib.loads(f"v = {raw}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = raw  # a bare word: a string (e.g. fidelity.solve.tier=linear)
-        out[key.strip()] = value
-    return out
-
 
 def _load(args):
     from mlsim.scene import load_scene
@@ -94,7 +57,7 @@ def cmd_check(args) -> int:
     flat = scene.to_dotted()
     width = max(len(k) for k in flat)
     for key, value in flat.items():
-        unit = _unit(key)
+        unit = unit_of(key)
         print(f"{key:<{width}} = {value!r:<24} {unit}".rstrip())
     if scene.kind != "ml_rod_array":
         print(f"\n# sensor kind {scene.kind!r}: outputs {', '.join(outputs_of(scene.kind))}")
@@ -120,22 +83,17 @@ def cmd_check(args) -> int:
     return EXIT_OK
 
 
-def cmd_run(args, outputs=None) -> int:
+def cmd_run(args, outputs=None, out_suffix: str = "") -> int:
     from mlsim import pipeline
 
     scene = _load(args)
     outputs = outputs or _outputs(args, scene)
     cache = _cache(args)
     if args.dry_run:
-        steps = pipeline.plan(scene, cache, outputs)
-        print(f"plan for {args.scene} (cache: {cache.root}):")
-        for s in steps:
-            what = "cached  " if s.action == "load" else "to run  "
-            mark = "*" if s.requested else " "
-            print(f"  {mark} {s.stage.name:<10} {what} key {s.key[:12]}  reads {', '.join(s.stage.reads)}")
-        print("  (* = requested output)")
-        return EXIT_OK
-    out_dir = Path(args.out) if args.out else Path("out") / scene.name
+        from mlsim.dry_run import print_plan
+
+        return print_plan(scene, cache, outputs, args.scene)
+    out_dir = Path(args.out) if args.out else Path("out") / f"{scene.name}{out_suffix}"
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     result = pipeline.run(scene, out_dir, cache, outputs, progress=not args.quiet, log=log, scene_path=str(args.scene))
     if not args.quiet:
@@ -146,11 +104,11 @@ def cmd_run(args, outputs=None) -> int:
 
 
 def cmd_mesh(args) -> int:
-    code = cmd_run(args, outputs=("mesh",))
+    code = cmd_run(args, outputs=("mesh",), out_suffix="_mesh")  # its own folder: a mesh run does not clobber a run's
     if code == EXIT_OK and not args.dry_run and not args.quiet:
         import json
 
-        out_dir = Path(args.out) if args.out else Path("out") / _load(args).name
+        out_dir = Path(args.out) if args.out else Path("out") / f"{_load(args).name}_mesh"
         summary = json.loads((out_dir / "summary.json").read_text())
         m = summary["stages"]["mesh"]["summary"]
         q = m["quality"]
@@ -169,6 +127,14 @@ def cmd_accuracy(args) -> int:
         raise SceneError([Problem("--stage", args.stage, "the accuracy studies are of the solve and the render stages; use --stage solve or render")])
     scene = _load(args)
     out_dir = Path(args.out) if args.out else Path("out") / f"{scene.name}_accuracy"
+    if args.dry_run:
+        from mlsim.dry_run import study_plan
+
+        runs = ([f"path {n} spp" for n in args.spp] + [f"transport {n} spp" for n in args.transport_spp]
+                + [f"deformed {n}x{n} direct samples" for n in args.direct_samples] + [f"reference: spectral path {args.reference_spp} spp"]
+                if args.stage == "render" else
+                [f"edge {e:g} mm, order {o}, {t}" for e in args.edges for o in args.orders for t in args.tiers])
+        return study_plan(f"accuracy --stage {args.stage}", args.scene, out_dir, runs)
     if args.stage == "render":
         return _render_accuracy(args, scene, out_dir)
     reference = None
@@ -225,6 +191,10 @@ def cmd_direction(args) -> int:
     from dllm.direction import SIGN_CONVENTION, direction_study, summary
 
     scene, out_dir, log = _study(args, "direction")
+    if args.dry_run:
+        from mlsim.dry_run import study_plan
+
+        return study_plan("direction", args.scene, out_dir, [f"push towards {a:g} deg" for a in args.angles], scene, _cache(args), ("dllm",))
     rows = direction_study(scene, args.angles, out_dir, _cache(args), progress=not args.quiet, log=log)
     print(f"sign convention: {SIGN_CONVENTION}")
     print(f"{'applied':>8} {'approach':>8} {'measured':>9} {'error':>7} {'all taxels':>10} {'events':>6} {'push':>5} {'samples':>7}  taxels")
@@ -245,6 +215,12 @@ def cmd_ambient(args) -> int:
     from dllm.ambient_study import ambient_study
 
     scene, out_dir, log = _study(args, "ambient")
+    if args.dry_run:
+        from dllm.ambient_study import setting_scenes
+        from mlsim.dry_run import study_plan
+
+        runs = [f"{name}: interaction and idle episodes, then {len(args.alphas)} x {len(args.betas)} thresholds" for name in setting_scenes(scene)]
+        return study_plan("ambient", args.scene, out_dir, runs, scene, _cache(args), ("camera", "calibration"))
     rows, rec = ambient_study(scene, alphas=tuple(args.alphas), betas=tuple(args.betas), out_dir=out_dir, cache=_cache(args),
                               progress=not args.quiet, log=log)
     print(f"{'setting':36} {'alpha':>6} {'beta':>5} {'detection':>9} {'false':>6} {'taxels':>6}")
@@ -269,11 +245,20 @@ def cmd_dataset(args) -> int:
     from mlsim.dataset.spec import load_dataset_spec
     from mlsim.dataset.store import DatasetMismatch
 
-    overrides = {k: v for k, v in (("samples_per_action", args.samples_per_action), ("people", args.people), ("seed", args.seed)) if v is not None}
-    spec, base = load_dataset_spec(args.spec, overrides)
+    overrides = _parse_sets(args.set)
+    nested = [k for k in overrides if "." in k]
+    if nested:
+        raise SceneError([Problem("--set", ",".join(nested), "a dataset spec's --set changes its top-level fields (samples_per_action, people, "
+                                  "seed, store_frames, ...); change [interaction] in the spec file, or the base scene")])
+    overrides |= {k: v for k, v in (("samples_per_action", args.samples_per_action), ("people", args.people), ("seed", args.seed)) if v is not None}
+    spec, base = load_dataset_spec(args.scene, overrides)
     if args.executor == "local" and args.address:
         raise SceneError([Problem("--address", args.address, "only with --executor ray")])
     out = Path(args.out) if args.out else Path("out") / spec.name
+    if args.dry_run:
+        from mlsim.dry_run import dataset_plan
+
+        return dataset_plan(spec, base, out, args.workers, args.executor)
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     try:
         summary = generate(spec, base, out, workers=args.workers, executor=args.executor, address=args.address, cache_dir=args.cache,
@@ -305,6 +290,11 @@ def cmd_sweep(args) -> int:
     loads = [read_load(p) for p in args.load] if args.load else None
     direction = read_load(args.direction_scene or DEFAULT_DIRECTION) if "direction" in wanted else None
     out = Path(args.out) if args.out else Path("out") / f"{scene.name}_sweep"
+    if args.dry_run:
+        from mlsim.dry_run import sweep_plan
+        from mlsim.sweep.variants import variants
+
+        return sweep_plan(scene, variants(scene, varies, "zip" if args.zip else "grid"), out, loads, wanted, args.workers)
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     try:
         summary = sweep(scene, varies, out, mode="zip" if args.zip else "grid", loads=loads, direction=direction, angles=tuple(args.angles),
@@ -320,35 +310,29 @@ def cmd_sweep(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mlsim", description="Simulate the mechanoluminescent visuotactile sensor.")
-    sub = parser.add_subparsers(dest="command", required=True)
+    from mlsim import __version__
 
-    def common(p, outputs: bool = True):
-        p.add_argument("scene", help="scene file (TOML), e.g. scenes/mavig_default.toml")
-        p.add_argument("--set", action="append", metavar="PATH=VALUE", help="override a scene field, e.g. sensor.rod.height_mm=12")
-        p.add_argument("--quiet", action="store_true", help="no progress bars or log lines")
+    parser = argparse.ArgumentParser(prog="mlsim", description="Simulate the mechanoluminescent visuotactile sensor and its siblings.",
+                                     epilog="examples:\n" + "\n".join(f"  {e[0]}" for e in EXAMPLES.values()), formatter_class=Formatter)
+    parser.add_argument("--version", action="version", version=f"mlsim {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="VERB")
 
-    p = sub.add_parser("run", help="run the stages the scene's outputs need")
-    common(p)
-    p.add_argument("--out", help="output directory (default out/<scene name>)")
+    def verb(name: str, help: str, func, out_default: str = "", scene_help: str = "scene file (TOML), e.g. scenes/mavig_default.toml",
+             metavar: str = "SCENE", **shared):
+        p = sub.add_parser(name, help=help, description=help, epilog=examples_epilog(name), formatter_class=Formatter)
+        p.add_argument("scene", metavar=metavar, help=scene_help)
+        add_shared(p, name, out_default=out_default, **shared)
+        p.set_defaults(func=func)
+        return p
+
+    p = verb("run", "run the stages the scene's outputs need", cmd_run, "out/<scene name>")
     p.add_argument("--outputs", action="append", help="products to write instead of the scene's (comma-separated)")
-    p.add_argument("--dry-run", action="store_true", help="print the plan and what is cached; run nothing")
-    p.add_argument("--cache", help="cache directory (default $MLSIM_CACHE_DIR or ~/.cache/mlsim)")
-    p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("check", help="validate a scene and print it resolved, with units")
-    common(p)
-    p.set_defaults(func=cmd_check)
+    verb("check", "validate a scene and print it resolved, with units", cmd_check)
+    verb("mesh", "build the tet mesh, report its quality, write VTU", cmd_mesh, "out/<scene name>_mesh")
 
-    p = sub.add_parser("mesh", help="build the tet mesh, report its quality, write VTU")
-    common(p)
-    p.add_argument("--out", help="output directory (default out/<scene name>)")
-    p.add_argument("--cache", help="cache directory")
-    p.add_argument("--dry-run", action="store_true", help="print the plan only")
-    p.set_defaults(func=cmd_mesh)
-
-    p = sub.add_parser("accuracy", help="error against run time of a stage's fidelity knobs (table, CSV, log-log plot)")
-    common(p)
+    p = verb("accuracy", "error against run time of a stage's fidelity knobs (table, CSV, log-log plot)", cmd_accuracy,
+             "out/<scene name>_accuracy")
     p.add_argument("--stage", default="solve", choices=["solve", "render"], help="the stage to study")
     p.add_argument("--edges", type=float, nargs="+", default=[2.5, 2.0, 1.5], metavar="MM", help="mesh edge lengths")
     p.add_argument("--orders", type=int, nargs="+", default=[1, 2], choices=[1, 2], help="element orders")
@@ -361,40 +345,29 @@ def build_parser() -> argparse.ArgumentParser:
                    help="render: the deformed tier's direct light at N x N samples per pixel (none: skip the tier)")
     p.add_argument("--frames", type=int, default=4, help="render: how many glowing frames (evenly spread) are compared")
     p.add_argument("--no-spectral", action="store_true", help="render: skip the path tier's spectral renders")
-    p.add_argument("--out", help="output directory (default out/<scene name>_accuracy)")
-    p.add_argument("--cache", help="cache directory")
-    p.set_defaults(func=cmd_accuracy)
 
-    p = sub.add_parser("direction", help="the DLLM's angle against the applied push direction (SPEC 1.5 direction test)")
-    common(p)
+    p = verb("direction", "the DLLM's angle against the applied push direction (SPEC 1.5 direction test)", cmd_direction,
+             "out/<scene name>_direction")
     p.add_argument("--angles", type=float, nargs="+", default=[15.0 * k for k in range(24)], metavar="DEG",
                    help="applied directions (default: the full circle in 15 deg steps; SPEC 1.5's bench test: 0 15 ... 90)")
-    p.add_argument("--out", help="output directory (default out/<scene name>_direction)")
-    p.add_argument("--cache", help="cache directory")
-    p.set_defaults(func=cmd_direction)
 
-    p = sub.add_parser("ambient", help="DLLM thresholds under ambient light: detection and false triggers per setting and (alpha, beta)")
-    common(p)
+    p = verb("ambient", "DLLM thresholds under ambient light: detection and false triggers per setting and (alpha, beta)", cmd_ambient,
+             "out/<scene name>_ambient")
     p.add_argument("--alphas", type=float, nargs="+", default=[1.01, 1.02, 1.05, 1.1, 1.2], help="global gate factors")
     p.add_argument("--betas", type=float, nargs="+", default=[1.1, 1.3, 1.5, 2.0], help="taxel gate factors")
-    p.add_argument("--out", help="output directory (default out/<scene name>_ambient)")
-    p.add_argument("--cache", help="cache directory")
-    p.set_defaults(func=cmd_ambient)
 
-    p = sub.add_parser("dataset", help="generate a synthetic interaction dataset (episodes in parallel; resumable; Zarr)")
-    p.add_argument("spec", help="dataset spec (TOML), e.g. scenes/interactions/paper.toml")
-    p.add_argument("--out", help="output directory (default out/<spec name>); a rerun into it resumes")
-    p.add_argument("--workers", type=int, default=max(1, os.cpu_count() or 1), help="worker processes (default: the CPU count)")
+    p = verb("dataset", "generate a synthetic interaction dataset (episodes in parallel; resumable; Zarr)", cmd_dataset,
+             "out/<spec name>; a rerun into it resumes", scene_help="dataset spec (TOML), e.g. scenes/interactions/small.toml", metavar="SPEC")
     p.add_argument("--executor", choices=["local", "ray"], default="local", help="local process pool, or Ray (pip install 'mlsim[ray]')")
     p.add_argument("--address", help="Ray cluster address, e.g. 127.0.0.1:6379 (default: start a local Ray)")
-    p.add_argument("--samples-per-action", type=int, help="override the spec's samples_per_action")
+    p.add_argument("--samples-per-action", type=int, help="override the spec's samples_per_action (same as --set samples_per_action=N)")
     p.add_argument("--people", type=int, help="override the spec's people")
     p.add_argument("--seed", type=int, help="override the spec's seed")
-    p.add_argument("--cache", help="cache directory for the sensor's precomputes")
-    p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
-    p.set_defaults(func=cmd_dataset)
-    p = sub.add_parser("sweep", help="compare rod geometries and materials: brightness, sensitivity, direction, separation, tear risk per variant")
-    common(p)
+
+    p = verb("sweep", "compare rod geometries and materials: brightness, sensitivity, direction, separation, tear risk per variant", cmd_sweep,
+             "out/<scene name>_sweep; a rerun into it resumes",
+             workers_help="variants in parallel, one thread each (default: the CPU count; each holds its sensor's factorised stiffness, "
+                          "about 1 GB on the default mesh)")
     p.add_argument("--vary", action="append", metavar="PATH=V1,V2,...", help="a field and its values, e.g. sensor.rod.height_mm=6,7.5,9,10.5,12 "
                    "or sensor.materials.core=SC37,PDMS,DS30 (repeat for more fields)")
     mode = p.add_mutually_exclusive_group()
@@ -406,14 +379,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--angles", type=float, nargs="+", default=[0.0, 45.0, 90.0], metavar="DEG", help="the direction study's push directions")
     p.add_argument("--metrics", action="append", default=None, metavar="LIST",
                    help="what to measure (comma-separated; default all): brightness, tear, separation, direction")
-    p.add_argument("--out", help="output directory (default out/<scene name>_sweep); a rerun into it resumes")
-    p.add_argument("--workers", type=int, default=max(1, min(os.cpu_count() or 1, 4)),
-                   help="variants in parallel, one thread each (default: the CPU count, at most 4: each holds its sensor's factorised "
-                        "stiffness, about 1 GB on the default mesh)")
     p.add_argument("--executor", choices=["local", "ray"], default="local", help="local process pool, or Ray (pip install 'mlsim[ray]')")
     p.add_argument("--address", help="Ray cluster address (default: start a local Ray)")
-    p.add_argument("--cache", help="cache directory (default $MLSIM_CACHE_DIR or ~/.cache/mlsim); variants share what they do not change")
-    p.set_defaults(func=cmd_sweep)
     try:
         from classifiers.cli import add_parsers
     except ImportError:

@@ -330,3 +330,26 @@ def test_ambient_study_false_triggers_follow_the_lights_on_jump(tmp_path, cache)
     assert rec["alpha"] == alphas[2] and rec["per_setting"]["lights on"]["false_rate"] == 0.0
     assert len((tmp_path / "ambient_study.csv").read_text().splitlines()) == 1 + 2 * 3
     assert (tmp_path / "ambient_lights_on.png").stat().st_size > 10_000
+
+
+def test_ambient_settings_start_from_the_scenes_ambient_reset():
+    """Each setting of the ambient study is exactly the lamp it names: a scene's own flicker and switching
+    (scenes/ambient.toml) do not leak into the steady lamp's setting; the scene's own lamp comes first. On a
+    scene without a lamp a setting's scene is the plain override (the same cache keys as before)."""
+    from pathlib import Path
+
+    from dllm.ambient_study import DEFAULT_SETTINGS, SCENE_SETTING, setting_scenes
+    from mlsim.scene import load_scene
+
+    scenes = Path(__file__).resolve().parents[1] / "scenes"
+    lamp = load_scene(scenes / "ambient.toml")
+    settings = setting_scenes(lamp)
+    assert list(settings) == [SCENE_SETTING, *DEFAULT_SETTINGS] and settings[SCENE_SETTING] is lamp
+    assert (lamp.ambient.flicker_hz, lamp.ambient.switch_on_s) == (100.0, 0.35)
+    steady = settings["daylight 50 W"].ambient
+    assert (steady.lamp, steady.power_w, steady.flicker_hz, steady.switch_on_s) == ("daylight", 50.0, 0.0, None)
+    assert settings["dark"].ambient.lamp == "none" and settings["daylight 50 W switched on at 0.2 s"].ambient.switch_on_s == 0.2
+    tiny = load_scene(scenes / "mavig_tiny.toml")
+    plain = setting_scenes(tiny)
+    assert SCENE_SETTING not in plain
+    assert all(plain[n].content_hash() == tiny.with_values(o).content_hash() for n, o in DEFAULT_SETTINGS.items())
