@@ -93,7 +93,9 @@ def run_episode_job(job: dict) -> dict:
 
     scene, sample, spec = _episode(job)
     t0 = time.perf_counter()
-    result = pipeline.run(scene, cache=pipeline.Cache(job["cache_dir"], keep=CACHE_KEEP), outputs=("dllm",), progress=False, log=lambda _m: None)
+    # the sensor's stages stay in memory after the worker's first episode (the mesh was read anew each time)
+    cache = pipeline.Cache(job["cache_dir"], keep=CACHE_KEEP, in_memory=CACHE_KEEP)
+    result = pipeline.run(scene, cache=cache, outputs=("dllm",), progress=False, log=lambda _m: None)
     seconds = time.perf_counter() - t0
     ep, dllm, camera, render = (result.results[k] for k in ("solve", "dllm", "camera", "render"))
     k = ep.frame_step
