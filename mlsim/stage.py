@@ -160,9 +160,10 @@ class RunContext:
 # sensor's episodes use about ten entries (patches, their place in the mesh, the Mitsuba sheet, the
 # raster, the reduced model, the bounces' matrix, the mesh and calibration frame kept by a dataset's
 # Cache(in_memory=), the DLLM's calibration): the least recently used goes first, so fewer entries
-# than one episode uses would evict every one of them, every episode.
+# than one episode uses would evict every one of them, every episode. Not many more: a sweep's worker
+# moves from sensor to sensor, and a sensor's reduced model and matrices are hundreds of MB.
 _MEMO: OrderedDict = OrderedDict()
-_MEMO_ENTRIES = 24
+_MEMO_ENTRIES = 16
 
 
 def memo(key: tuple, build: Callable[[], Any]):
