@@ -78,13 +78,14 @@ def detect(calibration: Calibration, params, idle, frames):
     return events, features, dict(det.counts)
 
 
-def run_episode(scene, camera_frames, calibration_rgb, idle) -> DllmEpisode:
+def run_episode(scene, camera_frames, calibration_rgb, idle, calibration: tuple | None = None) -> DllmEpisode:
     """Calibrate on ``calibration_rgb`` (H, W, 3), then run the streaming detector on the ``idle``
     frames (n, H, W, 3) (its threshold initialisation) and on ``camera_frames`` (a
-    :class:`mlsim.render.output.CameraFrames`)."""
+    :class:`mlsim.render.output.CameraFrames`). ``calibration``: :func:`calibrate_scene`'s result
+    for this frame and scene when the caller already has it."""
     from dllm.detector import DllmParams
 
-    cal, rod_of_taxel = calibrate_scene(scene, calibration_rgb)
+    cal, rod_of_taxel = calibrate_scene(scene, calibration_rgb) if calibration is None else calibration
     events, features, counts = detect(cal, DllmParams.from_scene(scene), idle, camera_frames.frames)
     return DllmEpisode(camera_frames.windows_s[:, 0].copy(), events, features, cal, rod_of_taxel, counts, len(idle))
 

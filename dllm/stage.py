@@ -24,7 +24,26 @@ def idle_before(scene: Scene, render_result):
 def _dllm_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from dllm.episode import run_episode
 
-    return run_episode(scene, inputs["camera"], inputs["calibration"].rgb, idle_before(scene, inputs["render"]))
+    rgb = inputs["calibration"].rgb
+    return run_episode(scene, inputs["camera"], rgb, idle_before(scene, inputs["render"]), calibration=_calibration_of(scene, rgb))
+
+
+# What the DLLM's calibration reads of a scene besides the calibration frame (dllm.episode.calibrate_scene:
+# the grid, Hough's blur and the optics' paraxial rod images)
+_CALIBRATION_FIELDS = ("sensor", "camera", "optics", "dllm.blur_sigma_px")
+
+
+def _calibration_of(scene: Scene, rgb):
+    """The Hough calibration of the calibration frame ``rgb`` (H, W, 3), made once per frame and scene
+    fields in this process (shared: read only): a dataset's episodes share one calibration frame, and
+    its Hough transform cost a few ms per episode."""
+    import hashlib
+
+    from dllm.episode import calibrate_scene
+    from mlsim.stage import memo
+
+    key = ("dllm_calibration", hashlib.sha256(rgb.tobytes()).hexdigest(), rgb.shape, scene.content_hash(_CALIBRATION_FIELDS))
+    return memo(key, lambda: calibrate_scene(scene, rgb))
 
 
 def _dllm_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:

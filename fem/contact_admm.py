@@ -55,6 +55,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fem import admm_kernels
+from mlsim.errors import SolverError, require_finite
 
 __all__ = ["DenseDelassus", "RodBlockDelassus", "rod_resultant_coupling", "rod_block_compliance", "AdmmInfo", "project_cone", "de_saxce",
            "admm_contact", "admm_on_touching_rods"]
@@ -463,6 +464,13 @@ def admm_contact(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float, f0: np.n
     m = len(b)
     b = np.ascontiguousarray(b, dtype=float)
     n = np.ascontiguousarray(n, dtype=float)
+    # the compiled iterations would carry a NaN into every coupled point's force and stop only at
+    # the iteration bound, with a NaN residual that no convergence test catches
+    require_finite(b, "the contact right-hand side b (points, 3) m (the points' gap under the body's free response)",
+                   "the body's response or the indenter's pose of this step is not finite: check the load's segments and the mesh",
+                   SolverError)
+    require_finite(n, "the contact normals n (points, 3)", "the indenter's surface normals of this step are not finite: check its pose",
+                   SolverError)
     y = np.zeros((m, 3)) if f0 is None else project_cone(f0, n, mu)
     sigma = G.apply(y) + b
     s = de_saxce(sigma, n, mu)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["MlsimError", "SceneError", "Problem", "MeshingError", "SolverError"]
+__all__ = ["MlsimError", "SceneError", "Problem", "MeshingError", "SolverError", "require_finite"]
 
 
 class MlsimError(RuntimeError):
@@ -54,3 +54,24 @@ class MeshingError(MlsimError):
 
 class SolverError(MlsimError):
     """A nonlinear solve that did not converge (names the case, load factor and residual)."""
+
+
+def require_finite(array, what: str, fix: str, error: type[Exception] = ValueError) -> None:
+    """Refuse an array with a NaN or an infinity before it reaches a compiled kernel.
+
+    The numba kernels (the rasteriser, the transport product, the ADMM contact iterations) would
+    carry a NaN silently into every pixel or force it touches, or clamp it away where a min/max
+    meets it; so their entry points check first. ``what`` names the array and its shape's meaning
+    ("radiance (frames, vertices)"); the message gives how many entries are bad, where the first
+    one is, and ``fix``. ``error``: the class raised (ValueError for arguments, SolverError inside
+    a solve)."""
+    import numpy as np
+
+    a = np.asarray(array)
+    finite = np.isfinite(a)
+    if finite.all():
+        return
+    bad = np.argwhere(~finite)
+    first = tuple(int(i) for i in bad[0])
+    raise error(f"{what}: {len(bad)} of {a.size} entries are NaN or infinite (the first at index {first}, "
+                f"{a[first]!r}); {fix}")

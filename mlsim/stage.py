@@ -156,9 +156,14 @@ class RunContext:
 
 # Per-sensor objects that episodes share (the ML sheet's patches and its Mitsuba scene, the reduced
 # model, the transport matrix), kept in this process: a worker running a dataset's episodes on one
-# sensor builds or loads each once instead of once per episode. Small: a few sensors' worth.
+# sensor builds or loads each once instead of once per episode. Small: a few sensors' worth. One
+# sensor's episodes use about ten entries (patches, their place in the mesh, the Mitsuba sheet, the
+# raster, the reduced model, the bounces' matrix, the mesh and calibration frame kept by a dataset's
+# Cache(in_memory=), the DLLM's calibration): the least recently used goes first, so fewer entries
+# than one episode uses would evict every one of them, every episode. Not many more: a sweep's worker
+# moves from sensor to sensor, and a sensor's reduced model and matrices are hundreds of MB.
 _MEMO: OrderedDict = OrderedDict()
-_MEMO_ENTRIES = 8
+_MEMO_ENTRIES = 16
 
 
 def memo(key: tuple, build: Callable[[], Any]):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 from pathlib import Path
@@ -95,6 +96,11 @@ def test_stored_episodes_are_complete_and_labelled(small):
         assert np.all(np.abs(omega) <= math.pi + 1e-6)  # stored in rad
     card = (out / "README.md").read_text()
     assert f"{N_SMALL} episodes" in card and "push 4" in card
+    summary = json.loads((out / "dataset.json").read_text())
+    if summary["episodes_run_now"] == N_SMALL:  # the fixture's run (not a later resume): its throughput on the card
+        frames = sum(e["n_frames"] for e in eps)
+        assert summary["frames_per_s"] == pytest.approx(frames / summary["episodes_wall_s"], rel=0.02)
+        assert f"{summary['frames_per_s']} frames/s" in card and summary["machine"] in card
     assert not (out / ".partial").exists() or not any((out / ".partial").iterdir())
 
 

@@ -65,6 +65,7 @@ def test_thread_limit_env():
         "MKL_NUM_THREADS": "3",
         "NUMEXPR_NUM_THREADS": "3",
         "VECLIB_MAXIMUM_THREADS": "3",
+        "NUMBA_NUM_THREADS": "3",
     }
     for bad in (0, -1, 1.0, "1", True):
         with pytest.raises(ValueError, match="threads_per_worker"):

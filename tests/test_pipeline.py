@@ -142,3 +142,48 @@ def test_summary_and_cli_exit_codes(tmp_path, tiny_mesh, cache, capsys):
     assert (tmp_path / "mesh.vtu").is_file() and (tmp_path / "summary.json").is_file()
     assert main(["run", str(TINY), "--outputs", "nonsense", "--cache", str(cache.root)]) == 2
     assert "--outputs = 'nonsense'" in capsys.readouterr().err
+
+
+def test_a_cache_keeps_its_in_memory_stages_loaded_once_and_the_memo_holds_an_episodes_worth(tmp_path):
+    """Cache(in_memory=): a dataset worker's per-sensor stages are read from disk once and handed out
+    again (the same object); other stages are read each time. The memo is an LRU: ten keys used in
+    turn, as one sensor's episodes use them, all stay (fewer entries than that would evict each one
+    before its next use)."""
+    from mlsim import stage as st
+
+    loads = []
+
+    def load(directory):
+        loads.append(directory.name)
+        return {"from": directory.name}
+
+    kept = st.Stage(name="kept_toy", doc="", reads=(), needs=(), run=lambda *a: None, save=lambda r, d: None, load=load)
+    other = st.Stage(name="other_toy", doc="", reads=(), needs=(), run=lambda *a: None, save=lambda r, d: None, load=load)
+    cache = Cache(tmp_path, in_memory=("kept_toy",))
+    first = cache.fetch(kept, "k1")
+    assert cache.fetch(kept, "k1") is first and loads == ["k1"]
+    assert cache.fetch(kept, "k2") is not first and loads == ["k1", "k2"]  # another key is another result
+    cache.fetch(other, "k1"), cache.fetch(other, "k1")
+    assert loads == ["k1", "k2", "k1", "k1"]
+    built = []
+    for _episode in range(3):
+        for k in range(10):
+            st.memo(("lru test", k), lambda k=k: built.append(k) or k)
+    assert built == list(range(10))
+
+
+def test_the_run_summary_is_made_when_first_read(tmp_path, monkeypatch):
+    """A run without an output folder (a dataset episode) does not make its summary unless asked;
+    asked, it is the summary a run with a folder writes."""
+    scene = load_scene(ROOT / "scenes" / "mavig_tiny.toml")
+    made = []
+    real = pipeline._summary
+    monkeypatch.setattr(pipeline, "_summary", lambda *a: made.append(1) or real(*a))
+    res = pipeline.run(scene, cache=Cache(tmp_path / "c"), outputs=("geometry",), progress=False, log=lambda m: None)
+    assert made == []
+    assert res.summary["stages"]["geometry"]["action"] == "run" and made == [1]
+    assert res.summary is res.summary and made == [1]
+    out = tmp_path / "out"
+    pipeline.run(scene, out_dir=out, cache=Cache(tmp_path / "c"), outputs=("geometry",), progress=False, log=lambda m: None)
+    written = json.loads((out / "summary.json").read_text())
+    assert written["stages"]["geometry"]["summary"] == res.summary["stages"]["geometry"]["summary"]

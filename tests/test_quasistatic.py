@@ -290,3 +290,28 @@ def test_episodes_sharing_the_sensors_contact_operator_repeat_a_cold_episode_exa
     np.testing.assert_array_equal(warm.von_mises, cold.von_mises)
     fresh = qs.run_episode(press_slide, mesh, body=body, settings=settings, reduced=qs.build_reduced(press_slide, mesh, body, settings))
     np.testing.assert_array_equal(fresh.rod_force_n, cold.rod_force_n)
+
+
+def test_the_precomputed_responses_are_the_bodys_own_solves(tiny_mesh, body):
+    """ReducedModel.build solves on the free DOFs only and forms the stress rows compiled (issue 40):
+    a rod's point compliance block, its points' stress on its own tets and displacement at its own
+    vertices are W^T K^-1 W, S K^-1 W and K^-1 W there, as LinearBody.solve, its stress operator and
+    scipy give them (to 1e-12 of the largest; the model's float32 responses to their rounding)."""
+    from fem import condensed
+
+    scene, _, mesh, _ = tiny_mesh
+    settings = qs.SolveSettings(tier="reduced", gravity=False)
+    red = qs.build_reduced(scene, mesh, body, settings)
+    points = condensed.contact_points(mesh, body.skmesh, body.d, condensed.contact_faces(mesh, settings.contact_band_m))
+    rod = int(red.local_sizes[0, 0])
+    cols = (3 * np.flatnonzero(points.rod == rod)[:, None] + np.arange(3)).ravel()
+    X = body.solve(points.W[:, cols].toarray())
+    block = (points.W.T @ X)[cols]
+    got = red.rod_blocks()[rod]
+    np.testing.assert_allclose(got, 0.5 * (block + block.T), rtol=0, atol=1e-12 * np.abs(block).max())
+    rows_s, stress, rows_d, disp = red.local_responses()[rod]
+    want_s = (body.S @ X)[rows_s]
+    want_d = X[body.vertex_dofs.ravel()][rows_d]
+    np.testing.assert_allclose(stress, want_s, rtol=1e-6, atol=1e-6 * np.abs(want_s).max())
+    np.testing.assert_allclose(disp, want_d, rtol=1e-6, atol=1e-6 * np.abs(want_d).max())
+    assert np.abs(got).max() > 0 and np.abs(stress).max() > 0

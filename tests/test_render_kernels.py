@@ -86,3 +86,34 @@ def test_the_largest_displacement_and_the_in_place_product_are_numpys():
     np.testing.assert_allclose(T.apply(E[0]), (A @ E[0]).reshape(12, 10), rtol=1e-5)
     with pytest.raises(ValueError, match="add_to"):
         T.apply(E, add_to=np.zeros((3, 12, 10)))  # float64
+
+
+def test_the_deformed_sheet_is_the_interpolated_displacement_bit_for_bit_on_any_thread_count():
+    """mlsim.render.deformed_vertices (compiled: mlsim.render.kernels.deformed_sheet) gives the sheet
+    that numpy's einsum over the gathered corners gave, bit for bit (datasets keep their bytes), reads
+    the frames' steps out of order, and moves a vertex exactly with a rigid translation."""
+    from types import SimpleNamespace
+
+    from mlsim.render import deformed_vertices
+
+    rng = np.random.default_rng(11)
+    S, P, N = 9, 300, 500
+    tets = rng.integers(0, P, (200, 4))
+    bary = rng.random((N, 4))
+    bary /= bary.sum(axis=1, keepdims=True)
+    tet = rng.integers(0, 200, N)
+    ep = SimpleNamespace(displacement=(1e-4 * rng.standard_normal((S, P, 3))).astype(np.float32), frame_step=np.array([0, 3, 2, 8, 8]),
+                         mesh_tets=tets, mesh_points=rng.random((P, 3)))
+    V = 1e-2 * rng.standard_normal((N, 3))
+    got = deformed_vertices(ep, V, (tet, bary))
+    u = ep.displacement[ep.frame_step]
+    np.testing.assert_array_equal(got, V[None] + np.einsum("nk,fnkd->fnd", bary, u[:, tets[tet], :].astype(float)))
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        np.testing.assert_array_equal(deformed_vertices(ep, V, (tet, bary)), got)
+    finally:
+        numba.set_num_threads(threads)
+    shift = np.array([1e-4, -2e-4, 3e-4], np.float32)
+    ep.displacement[:] = shift  # every mesh vertex moved alike: the sheet moves by it (weights sum to 1)
+    np.testing.assert_allclose(deformed_vertices(ep, V, (tet, bary)) - V[None], np.broadcast_to(shift, (5, N, 3)), rtol=1e-12, atol=1e-19)

@@ -48,7 +48,9 @@ def write_card(out_dir: str | Path, spec, base, summary: dict) -> Path:
         "with tremor; the action definitions are in that module's docstring).",
         f"- Mesh cache key `{summary['mesh_key'][:16]}`. fTetWild does not give the same mesh twice: the same spec and seed give "
         "byte-identical features on the same mesh; with a separately built mesh the numbers differ in their last bits.",
-        f"- Generated with {summary['workers']} {summary['executor']} worker(s); versions: "
+        f"- Generated with {summary['workers']} {summary['executor']} worker(s) from a driver on {summary.get('machine', 'an unrecorded machine')}: "
+        f"{summary.get('episodes_per_s')} episodes/s, {summary.get('frames_per_s')} frames/s end to end in the last run "
+        f"(precompute {summary.get('precompute_s')} s); versions: "
         + ", ".join(f"{k} {v}" for k, v in summary["versions"].items()) + ".",
         "",
         "## How to read it",

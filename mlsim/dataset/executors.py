@@ -46,6 +46,9 @@ THREAD_ENV_VARS = (
     "MKL_NUM_THREADS",
     "NUMEXPR_NUM_THREADS",
     "VECLIB_MAXIMUM_THREADS",
+    # numba's own pool (the render, contact and field kernels): its default, the core count, gave each
+    # of N workers N threads, N^2 on N cores. The kernels' sums do not depend on it (tested per kernel)
+    "NUMBA_NUM_THREADS",
 )
 
 # How many jobs the local pool holds per worker: one running and one queued keeps every worker busy

@@ -93,7 +93,9 @@ def run_episode_job(job: dict) -> dict:
 
     scene, sample, spec = _episode(job)
     t0 = time.perf_counter()
-    result = pipeline.run(scene, cache=pipeline.Cache(job["cache_dir"], keep=CACHE_KEEP), outputs=("dllm",), progress=False, log=lambda _m: None)
+    # the sensor's stages stay in memory after the worker's first episode (the mesh was read anew each time)
+    cache = pipeline.Cache(job["cache_dir"], keep=CACHE_KEEP, in_memory=CACHE_KEEP)
+    result = pipeline.run(scene, cache=cache, outputs=("dllm",), progress=False, log=lambda _m: None)
     seconds = time.perf_counter() - t0
     ep, dllm, camera, render = (result.results[k] for k in ("solve", "dllm", "camera", "render"))
     k = ep.frame_step
@@ -123,6 +125,14 @@ def run_episode_job(job: dict) -> dict:
 
 
 # ------------------------------------------------------------------------------------ the driver
+def _machine() -> str:
+    """The driver's hardware in words (the dataset card's throughput is of it and its workers)."""
+    import os
+    import platform
+
+    return f"{platform.machine()} {platform.processor() or platform.system()}, {os.cpu_count()} CPUs, {platform.system()} {platform.release()}"
+
+
 def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: int = 1, executor: str = "local", address: str | None = None,
              cache_dir: str | Path | None = None, progress: bool = True, log: Callable[[str], None] = print,
              limit: int | None = None) -> dict:
@@ -159,13 +169,14 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     t_run = time.perf_counter()
     bar = tqdm(total=len(jobs), initial=len(done), unit="episode", desc=f"dataset {spec.name}", disable=None if progress else True,
                smoothing=0.05)
-    n_new = 0
+    n_new = n_frames = 0
     worker_seconds = []
     try:
         for job, result in map_unordered(run_episode_job, (j | common for j in todo), executor=executor, workers=workers, address=address):
             store.write_episode(out, job["episode_id"], result["arrays"], result["attrs"])
             worker_seconds.append(result["attrs"]["seconds"])
             n_new += 1
+            n_frames += int(result["attrs"]["n_frames"])
             bar.update(1)
     finally:
         bar.close()
@@ -176,6 +187,7 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
         "complete": len(stored) == len(jobs), "workers": workers, "executor": executor,
         "precompute_s": round(precompute_s, 2), "episodes_wall_s": round(wall, 2),
         "episodes_per_s": round(n_new / wall, 3) if wall > 0 and n_new else None,
+        "frames_per_s": round(n_frames / wall, 1) if wall > 0 and n_new else None, "machine": _machine(),
         "worker_s_per_episode_median": round(float(np.median(worker_seconds)), 3) if worker_seconds else None,
         "total_wall_s": round(time.perf_counter() - t_start, 2), "spec_hash": spec.content_hash(), "mesh_key": attrs["mesh_key"],
         "versions": attrs["versions"],

@@ -89,7 +89,13 @@ def photon_rates(t_s, stress_voigt_pa, windows_s, patches: MLPatches, model: str
     stress = np.asarray(stress_voigt_pa)
     if stress.ndim != 3 or stress.shape[1] != 6:
         raise ValueError(f"stress of shape {stress.shape}: must be (steps, 6, tets)")
-    sigma_eq = equivalent_stress(measure)(np.moveaxis(stress[:, :, patches.tet], 1, 2))  # (S, N)
+    if measure == "von_mises":  # compiled, the same bits (mlsim.emission.kernels); a NaN stays a NaN, refused below
+        from mlsim.emission.kernels import von_mises_at
+
+        sigma_eq = np.empty((stress.shape[0], len(patches.tet)))
+        von_mises_at(np.ascontiguousarray(stress), np.ascontiguousarray(patches.tet, dtype=np.int64), sigma_eq)
+    else:
+        sigma_eq = equivalent_stress(measure)(np.moveaxis(stress[:, :, patches.tet], 1, 2))  # (S, N)
     if not (np.isfinite(brightness_photons_per_m2) and brightness_photons_per_m2 >= 0 and np.isfinite(scale) and scale >= 0):
         raise ValueError(f"brightness_photons_per_m2 = {brightness_photons_per_m2}, scale = {scale}: must be finite and >= 0")
     fraction, state = m.fraction(t_s, sigma_eq, windows_s, params, n0)

@@ -106,12 +106,15 @@ def deformed_vertices(episode, vertices_m, located: tuple[np.ndarray, np.ndarray
     result for these vertices on this mesh, when the caller already has it (it depends on the
     mesh and the sheet only, not on the episode)."""
     from fem.mesh import locate_points
+    from mlsim.render.kernels import deformed_sheet
 
-    V = np.asarray(vertices_m, dtype=float)
+    V = np.ascontiguousarray(vertices_m, dtype=float)
     tet, bary = located if located is not None else locate_points(episode.mesh_points, episode.mesh_tets, V)
-    corners = episode.mesh_tets[tet]  # (N, 4)
-    u = episode.displacement[episode.frame_step]  # (F, P, 3)
-    return V[None] + np.einsum("nk,fnkd->fnd", bary, u[:, corners, :].astype(float))
+    corners = np.ascontiguousarray(episode.mesh_tets[tet], dtype=np.int64)  # (N, 4)
+    steps = np.ascontiguousarray(episode.frame_step, dtype=np.int64)
+    out = np.empty((len(steps),) + V.shape)
+    deformed_sheet(V, corners, np.ascontiguousarray(bary, dtype=float), np.ascontiguousarray(episode.displacement), steps, out)
+    return out
 
 
 def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "transport", *, spp: int = 16, seed: int = 0,

@@ -50,6 +50,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mlsim.errors import require_finite
+from mlsim.render.transport import RADIANCE_FIX
+
 __all__ = ["DirectRaster", "direct_raster", "tangent_table", "sample_throughput", "N_BANDS"]
 
 #: pixel-row bands of a frame, rasterised one after the other (the frames run in parallel): a
@@ -151,8 +154,8 @@ class DirectRaster:
 
         V = np.asarray(vertices_m, dtype=np.float64)
         flat = np.ascontiguousarray(V.reshape(-1, 3) * 1e3)
-        if not np.all(np.isfinite(flat)):
-            raise ValueError("vertices_m must be finite")
+        require_finite(V, "vertices_m (..., 3) of the sheet to rasterise", "the deformed sheet comes from the solve's displacement: check the "
+                       "solve stage (solve_forces.csv) or the vertices passed in")
         uv = np.empty((len(flat), 2))
         outside = project_through_interfaces(flat, self.inv_length, self.r2_step_mm2, self.z_step_mm, self.pixel_map, uv)
         if outside:
@@ -172,6 +175,7 @@ class DirectRaster:
         e = np.ascontiguousarray(radiance, dtype=np.float32)
         if V.ndim != 3 or V.shape[1:] != (self.n_vertices, 3) or e.shape != V.shape[:2]:
             raise ValueError(f"vertices_m {V.shape} and radiance {e.shape}: must be (F, {self.n_vertices}, 3) and (F, {self.n_vertices})")
+        require_finite(e, "radiance (frames, vertices) to rasterise", RADIANCE_FIX)
         uv = self.pixels_of(V)
         depth = np.ascontiguousarray(V[..., 2], dtype=np.float32)  # along a ray inside the core, z grows
         return rasterise_direct(uv, depth, self.faces, e, self.per_side, self.orientation, self.height_px, self.width_px,

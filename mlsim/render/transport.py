@@ -31,7 +31,14 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["TransportMatrix", "trace_transport"]
+from mlsim.errors import require_finite
+
+__all__ = ["TransportMatrix", "trace_transport", "RADIANCE_FIX"]
+
+#: What to do about a non-finite radiance handed to a compiled render kernel (it comes from the
+#: emission stage's photons, which come from the solve's stresses).
+RADIANCE_FIX = ("the radiance comes from the emission stage's photons (mlsim.render.radiance_of): check the emission (emission.csv) and "
+                "the solve's stresses (solve_forces.csv) that feed it")
 
 
 @dataclass
@@ -63,6 +70,7 @@ class TransportMatrix:
         e2 = e[None] if single else e
         if e2.ndim != 2 or e2.shape[1] != self.n_vertices:
             raise ValueError(f"radiance of shape {e.shape}: must be (frames, {self.n_vertices}) or ({self.n_vertices},)")
+        require_finite(e2, "radiance (frames, vertices) into the transport matrix's product", RADIANCE_FIX)
         shape = (len(e2), self.height_px, self.width_px)
         if add_to is not None and (add_to.shape != shape or add_to.dtype != np.float32 or not add_to.flags.c_contiguous):
             raise ValueError(f"add_to {add_to.shape} {add_to.dtype}: must be C-contiguous float32 {shape}")
