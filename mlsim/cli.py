@@ -111,6 +111,10 @@ def cmd_check(args) -> int:
     if scene.load is not None:
         frames = scene.load.duration_s * scene.camera.fps
         print(f"load duration            = {scene.load.duration_s:.4g} s ({frames:.0f} frames at {scene.camera.fps:g} FPS)")
+    from mlsim.plausibility import warnings  # plausible but expensive (issue 39)
+
+    for line in warnings(scene):
+        print(f"warning: {line}")
     print("\n# materials")
     for region in ("core", "ml_layer", "absorber"):
         m = scene.material(region)
@@ -126,6 +130,9 @@ def cmd_run(args, outputs=None) -> int:
     scene = _load(args)
     outputs = outputs or _outputs(args, scene)
     cache = _cache(args)
+    from mlsim import run_budget  # the cost before the run, and its budget (issue 39)
+
+    estimate = run_budget.estimate(scene, pipeline.plan(scene, cache, outputs))
     if args.dry_run:
         steps = pipeline.plan(scene, cache, outputs)
         print(f"plan for {args.scene} (cache: {cache.root}):")
@@ -134,9 +141,13 @@ def cmd_run(args, outputs=None) -> int:
             mark = "*" if s.requested else " "
             print(f"  {mark} {s.stage.name:<10} {what} key {s.key[:12]}  reads {', '.join(s.stage.reads)}")
         print("  (* = requested output)")
+        print("\n".join([estimate.headline(), *estimate.table()]))
         return EXIT_OK
+    budget = getattr(args, "max_memory_gb", None), getattr(args, "max_frames", None), getattr(args, "over_budget", False)
+    run_budget.enforce(estimate, *budget)
     out_dir = Path(args.out) if args.out else Path("out") / scene.name
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    log(estimate.headline())
     result = pipeline.run(scene, out_dir, cache, outputs, progress=not args.quiet, log=log, scene_path=str(args.scene))
     if not args.quiet:
         for name, files in result.files.items():
@@ -332,8 +343,11 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--out", help="output directory (default out/<scene name>)")
     p.add_argument("--outputs", action="append", help="products to write instead of the scene's (comma-separated)")
-    p.add_argument("--dry-run", action="store_true", help="print the plan and what is cached; run nothing")
+    p.add_argument("--dry-run", action="store_true", help="print the plan, what is cached and the cost estimate; run nothing")
     p.add_argument("--cache", help="cache directory (default $MLSIM_CACHE_DIR or ~/.cache/mlsim)")
+    p.add_argument("--max-memory-gb", type=float, help="refuse a run expected to need more (default: half the machine's memory)")
+    p.add_argument("--max-frames", type=int, help="refuse a run of more frames")
+    p.add_argument("--over-budget", action="store_true", help="run even past --max-memory-gb / --max-frames")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("check", help="validate a scene and print it resolved, with units")
