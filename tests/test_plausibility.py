@@ -184,3 +184,21 @@ def test_empty_contact_operator_is_a_solver_error():
 
     with pytest.raises(SolverError, match="contact set is empty"):
         DenseDelassus(np.zeros((0, 0)), np.zeros(0))
+
+
+def test_time_grid_refuses_a_load_past_the_step_limit_before_allocating():
+    """A load built in code is not checked by the scene model: the grid itself refuses it (a slide at
+    1e-9 mm/s asked numpy for 335 GiB), naming the steps and the limit."""
+    from fem.trajectory import time_grid
+    from mlsim.errors import SolverError
+    from mlsim.scene import LoadSpec
+
+    load = LoadSpec.model_validate({"indenter": {"shape": "sphere", "diameter_mm": 4.0},
+                                    "segments": [{"kind": "slide", "distance_mm": 1.5, "speed_mm_s": 1e-9}]})
+    with pytest.raises(SolverError, match=f"4.5e\\+10 frames at 30 FPS, .* past the limit of {plausibility.MAX_SOLVE_STEPS}"):
+        time_grid(load, 30.0)
+    load = LoadSpec.model_validate({"indenter": {"shape": "sphere", "diameter_mm": 4.0},
+                                    "segments": [{"kind": "hold", "duration_s": 1e308}]})
+    with pytest.raises(SolverError, match="inf frames"):
+        time_grid(load, 1e3)
+    assert time_grid(load.model_copy(update={"segments": (load.segments[0].model_copy(update={"duration_s": 1.0}),)}), 30.0).n_frames == 32
