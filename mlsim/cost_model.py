@@ -108,12 +108,13 @@ def solve_steps(frames: float, substeps: int) -> float:
 def body_volume_mm3(sensor) -> float:
     """The elastomer's volume (mm^3): the base slab and the rods (the ml_rod_array kind's sensor)."""
     radius = sensor.rod.diameter_mm / 2.0
-    return sensor.size_x_mm * sensor.size_y_mm * sensor.base.thickness_mm + sensor.n_rods * math.pi * radius**2 * sensor.rod.height_mm
+    return sensor.size_x_mm * sensor.size_y_mm * sensor.base.thickness_mm + sensor.n_rods * math.pi * radius * radius * sensor.rod.height_mm
 
 
 def estimated_tets(scene) -> float:
     """The mesh's tetrahedra expected at ``fidelity.mesh.edge_length_mm`` (module docstring)."""
-    regular_mm3 = scene.fidelity.mesh.edge_length_mm**3 / (6.0 * math.sqrt(2.0))
+    edge = scene.fidelity.mesh.edge_length_mm
+    regular_mm3 = edge * edge * edge / (6.0 * math.sqrt(2.0))  # (a product: a power past 1e308 raises, a product is inf)
     return TETS_PER_REGULAR_TET * body_volume_mm3(scene.sensor) / regular_mm3 if regular_mm3 > 0 else math.inf
 
 

@@ -820,10 +820,12 @@ def check_consistency(scene: Scene) -> list[Problem]:
         problems.append(
             Problem("fidelity.mesh.edge_length_mm", mesh.edge_length_mm, f"must be <= the rod diameter ({s.rod.diameter_mm:g} mm) to resolve the rods")
         )
-    volume_mm3 = s.size_x_mm * s.size_y_mm * s.base.thickness_mm + s.n_rods * math.pi * radius**2 * s.rod.height_mm
-    regular_tet_mm3 = mesh.edge_length_mm**3 / (6 * math.sqrt(2))  # 0.0 for an edge below 1e-103 mm: inf tets
+    volume_mm3 = s.size_x_mm * s.size_y_mm * s.base.thickness_mm + s.n_rods * math.pi * radius * radius * s.rod.height_mm
+    # products, not powers: a float power past 1e308 raises OverflowError where a product is inf; an
+    # edge below 1e-103 mm cubes to 0.0 (inf tets); inf / inf is NaN, refused too
+    regular_tet_mm3 = mesh.edge_length_mm * mesh.edge_length_mm * mesh.edge_length_mm / (6 * math.sqrt(2))
     n_tets = volume_mm3 / regular_tet_mm3 if regular_tet_mm3 > 0 else math.inf
-    if n_tets > 5e6:
+    if not n_tets <= 5e6:
         problems.append(
             Problem(
                 "fidelity.mesh.edge_length_mm",

@@ -107,18 +107,48 @@ def test_every_kind_has_numeric_fields_to_draw():
     assert all(n >= 10 for n in counts.values()), counts
 
 
-@settings(max_examples=FAST_DRAWS, derandomize=True, database=None, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
-@given(draw=draws())
-def test_fuzzed_scenes_pass_or_name_a_field(draw, capsys, tmp_path):
-    scene_file, changes = draw
-    check_draw(scene_file, changes, capsys, tmp_path)
+def _fuzz(max_examples: int):
+    """A seeded hypothesis test of ``max_examples`` draws through :func:`check_draw`."""
+
+    @settings(max_examples=max_examples, derandomize=True, database=None, deadline=None,
+              suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+    @given(draw=draws())
+    def fuzz(draw, capsys, tmp_path):
+        scene_file, changes = draw
+        check_draw(scene_file, changes, capsys, tmp_path)
+
+    return fuzz
 
 
-@pytest.mark.slow
-@settings(max_examples=SLOW_DRAWS, derandomize=True, database=None, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
-@given(draw=draws())
-def test_fuzzed_scenes_many_draws(draw, capsys, tmp_path):
-    scene_file, changes = draw
-    check_draw(scene_file, changes, capsys, tmp_path)
+test_fuzzed_scenes_pass_or_name_a_field = _fuzz(FAST_DRAWS)
+test_fuzzed_scenes_many_draws = pytest.mark.slow(_fuzz(SLOW_DRAWS))
+
+
+EXTREMES = (0, -1, 1e-300, 1e300, math.nan, math.inf, -math.inf)
+
+
+@pytest.mark.parametrize("kind", sorted(KIND_SCENES))
+def test_every_numeric_field_at_each_extreme(kind):
+    """Every numeric field of the kind's scene, one at a time, at each of ``EXTREMES``: the scene model
+    refuses it naming fields, or the plan and its estimate are made (in process: the CLI's path
+    without its parsing, so that all 467 fields x 7 values take seconds)."""
+    from mlsim import pipeline, run_budget
+    from mlsim.errors import SceneError
+    from mlsim.scene import _set_path, _split_path, read_toml, scene_from_dict
+
+    data = read_toml(ROOT / KIND_SCENES[kind])
+    refused = passed = 0
+    for path in numeric_fields(KIND_SCENES[kind]):
+        for value in EXTREMES:
+            changed = json.loads(json.dumps(data))
+            try:
+                _set_path(changed, _split_path(path), value, path)
+                scene = scene_from_dict(changed)
+            except SceneError as exc:
+                assert exc.problems and all(p.path and p.message for p in exc.problems), (path, value, str(exc))
+                refused += 1
+                continue
+            est = run_budget.estimate(scene, pipeline.plan(scene, None))
+            assert math.isfinite(est.seconds) and math.isfinite(est.memory_bytes), (path, value, est)
+            passed += 1
+    assert refused > passed > 0  # most extremes are refused; some (0 for a non-negative, 1e300 for an unbounded count) pass
