@@ -3,9 +3,11 @@ mesh size, the memory and the time it expects (base layer: a pure function of th
 
 Every figure is a stated model calibrated on measured runs (2 cores, 2026-11-26/27, quoted in the
 README and ``benchmarks/``); ``benchmarks/bench_cost_model.py`` runs scenes from an empty cache and
-prints each stage's estimate beside what it took. The model is meant to be right within a factor of
-two, which is what a budget needs (will this run take seconds, minutes or hours; megabytes or tens
-of gigabytes), not a timing prediction: the machines' speed varies by half within the hour.
+prints each stage's estimate beside what it took. Times are calibrated against each stage's CPU
+seconds, which the other jobs of a shared machine do not stretch: the wall time of a stage on one
+core on an idle machine, up to twice its wall time where it keeps both cores busy (PARDISO, Mitsuba).
+The model is meant to be right within a factor of two, which is what a budget needs (will this run
+take seconds, minutes or hours; megabytes or tens of gigabytes), not a timing prediction.
 
 The sizes follow from the scene alone:
 
@@ -34,14 +36,18 @@ TETS_PER_REGULAR_TET = 2.5
 NODES_PER_TET = 1.9
 VERTICES_PER_TET = 0.32
 # fTetWild, curved P2 nodes, layer fractions: the default mesh in 20-75 s (README, bench_sweep), the
-# tiny one in about 5 s (tests/conftest.py): about 2.5 ms per tet
+# tiny one in 13 CPU s (bench_cost_model, 2026-11-27): 8 s to start the fTetWild worker and load its
+# libraries, then about 2.5 ms per tet
 MESH_S_PER_TET = 2.5e-3
-MESH_OVERHEAD_S = 2.0
+MESH_OVERHEAD_S = 8.0
 # the linear body (P2-P1 assembly and MKL PARDISO's factors): "about 1 GB on the default mesh" per
 # sweep worker (mlsim.cli sweep --workers), i.e. 60 kB per tet; its assembly and factorisation
 # 16.6 s of a 30 s press on the default mesh (c5efea4)
 BODY_BYTES_PER_TET = 6.0e4
 BODY_S_PER_TET = 1.0e-3
+# the solve's imports (scikit-fem, numba's cached kernels, PARDISO) and set-up: the tiny scene's
+# solve took 3.9 CPU s for 1.6 s of body and steps (bench_cost_model, 2026-11-27)
+SOLVE_FIXED_S = 2.5
 # a solve step: the linear tier 45.7 ms per frame on the default demo (bench_tiers, median of 9) and
 # 7.4 ms on the tiny scene's (2026-11-27): 2.2 ms + 2.6 us per tet; the reduced tier 2.8 ms on the
 # default demo (17x less); the nonlinear tier 15.8 s per frame on the default demo, 4.8 s on the screw
@@ -53,19 +59,26 @@ SOLVE_BYTES_PER_STEP_NODE = 8 * 3
 # the reduced tier's precompute: a response per contact patch (about 7 + 8 per rod) on every node
 REDUCED_PATCHES_PER_ROD = 15
 # emission: the sheet's vertices from its area at fidelity.render.sheet_edge_mm (a triangle per
-# half square), a few float64 arrays per vertex and frame
+# half square), a few float64 arrays per vertex and frame; the sheet's patches made once per run:
+# the default demo's emission 1.7 CPU s, the tiny scene's 0.22 (bench_cost_model, 2026-11-27)
 EMISSION_BYTES_PER_VERTEX_FRAME = 8 * 6
 EMISSION_S_PER_VERTEX_FRAME = 2.0e-7
+EMISSION_S_PER_VERTEX = 2.5e-4
+EMISSION_FIXED_S = 0.2
 # render: the deformed tier 250-307 frames/s on the demo after an 18-22 s precompute (README); path
 # tracing about 1 s per 16 spp frame of 350 x 350 on 2 cores; the transport tier's product ~1 ms
 RENDER_FRAME_S = {"deformed": 3.5e-3, "transport": 1.0e-3}
-RENDER_PRECOMPUTE_S = {"deformed": 20.0, "transport": 15.0, "path": 2.0}
+# the precompute from an empty cache (the bounce or transport matrix traced at transport_spp, the
+# raster's tables) grows with the sheet: the default demo's 90.6 CPU s, the tiny scene's 18.2
+# (bench_cost_model, 2026-11-27; README's 18-22 s of bench_deformed had its matrix cached)
+RENDER_PRECOMPUTE_FIXED_S = {"deformed": 8.0, "transport": 6.0, "path": 2.0}
+RENDER_PRECOMPUTE_S_PER_VERTEX = {"deformed": 0.017, "transport": 0.013, "path": 0.0}
 PATH_S_PER_SAMPLE = 1.0 / (16 * 350 * 350)
 # the transport matrix: 2.61 M entries on the demo at 64 spp (96069d7), 12 bytes each
 TRANSPORT_ENTRIES_PER_PIXEL_SPP = 2.61e6 / (350 * 350 * 64)
 # camera: per frame the native pixels (binning^2 per output pixel) in float64 through the noise model
 CAMERA_BYTES_PER_NATIVE_PIXEL = 8 * 4
-CAMERA_S_PER_NATIVE_PIXEL = 2.0e-8
+CAMERA_S_PER_NATIVE_PIXEL = 1.2e-8  # the default demo's 52 frames: 1.3 CPU s, the tiny scene's 38: 1.8
 # Mitsuba's and numpy's own footprint once imported (a process that renders)
 RENDER_PROCESS_BYTES = 1.0 * GB
 
@@ -145,15 +158,18 @@ def _solve(scene) -> StageCost:
     precompute = BODY_S_PER_TET * tets
     if settings.tier == "reduced":
         body += REDUCED_PATCHES_PER_ROD * scene.sensor.n_rods * 3 * nodes * 8
-        precompute *= 3.0  # a response per patch after the factorisation
+        # a response per contact patch after the factorisation: the screw scene's reduced solve took
+        # 138 CPU s from an empty cache (bench_cost_model, 2026-11-27), 7 x the linear body's
+        precompute *= 7.0
     memory = body + steps * (SOLVE_BYTES_PER_STEP_TET * tets + SOLVE_BYTES_PER_STEP_NODE * VERTICES_PER_TET * tets)
-    seconds = precompute + steps * (fixed + per_tet * tets)
+    seconds = SOLVE_FIXED_S + precompute + steps * (fixed + per_tet * tets)
     return StageCost("solve", memory, seconds, frames=_int(frames), steps=_int(steps), tets=_int(tets), note=settings.tier)
 
 
 def _emission(scene) -> StageCost:
     frames, vertices = _frames(scene), _sheet_vertices(scene)
-    return StageCost("emission", frames * vertices * EMISSION_BYTES_PER_VERTEX_FRAME, 1.0 + frames * vertices * EMISSION_S_PER_VERTEX_FRAME,
+    seconds = EMISSION_FIXED_S + vertices * EMISSION_S_PER_VERTEX + frames * vertices * EMISSION_S_PER_VERTEX_FRAME
+    return StageCost("emission", frames * vertices * EMISSION_BYTES_PER_VERTEX_FRAME, seconds,
                      frames=_int(frames))
 
 
@@ -167,7 +183,8 @@ def _render(scene) -> StageCost:
     else:
         per_frame = RENDER_FRAME_S[r.tier] * pixels / (350 * 350) * (r.direct_samples_per_side**2 if r.tier == "deformed" else 1)
         memory += TRANSPORT_ENTRIES_PER_PIXEL_SPP * pixels * r.transport_spp * 12
-    precompute = RENDER_PRECOMPUTE_S[r.tier] * (pixels / (350 * 350)) * (r.transport_spp / 64 if r.tier != "path" else 1)
+    per_vertex = RENDER_PRECOMPUTE_S_PER_VERTEX[r.tier] * (pixels / (350 * 350)) * (r.transport_spp / 64)
+    precompute = RENDER_PRECOMPUTE_FIXED_S[r.tier] + per_vertex * _sheet_vertices(scene)
     return StageCost("render", memory, precompute + frames * per_frame, frames=_int(frames), note=r.tier)
 
 
@@ -182,8 +199,10 @@ def _camera(scene) -> StageCost:
 
 
 def _calibration(scene) -> StageCost:
+    # after the render stage (Mitsuba loaded, the sensor's scene built) the default demo's took 0.07
+    # CPU s (bench_cost_model, 2026-11-27); alone it builds the scene first
     pixels = scene.camera.width_px * scene.camera.height_px
-    return StageCost("calibration", RENDER_PROCESS_BYTES, 5.0 + PATH_S_PER_SAMPLE * pixels * 64)
+    return StageCost("calibration", 0.2 * GB + pixels * 3 * 8, 0.5 + pixels * 1e-6)
 
 
 def _int(value: float) -> int | None:
