@@ -191,6 +191,10 @@ class DenseDelassus(_Delassus):
     anderson_memory = DENSE_ANDERSON_MEMORY
 
     def __init__(self, C: np.ndarray, k: np.ndarray):
+        if np.size(k) == 0:
+            # eigh of a 0 x 0 operator has no smallest eigenvalue (numpy's "zero-size array" error)
+            raise SolverError("the contact set is empty: no point of the sensor lies near the indenter's path, so there is no "
+                              "contact problem to solve; check the load (load.start_xy_mm, the press depths) or solve without contact")
         self.C = np.ascontiguousarray(C)
         self.inv_k = 1.0 / np.asarray(k, dtype=float)
         # G = Q diag(lambda) Q^T once: every rho is then (G + rho I)^-1 = Q diag(1 / (lambda + rho)) Q^T,

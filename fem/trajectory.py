@@ -29,6 +29,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from mlsim import cost_model, plausibility
+from mlsim.errors import SolverError
+
 __all__ = ["IndenterState", "TimeGrid", "time_grid", "initial_state", "advance", "segment_at"]
 
 
@@ -72,9 +75,17 @@ class TimeGrid:
 
 
 def time_grid(load, fps: float, substeps: int = 1, extra_frames: int = 1) -> TimeGrid:
-    """Frames covering the whole load (its duration, rounded up to a frame) plus ``extra_frames``."""
-    n = int(math.ceil(load.duration_s * fps - 1e-9)) + 1 + extra_frames
-    return TimeGrid(float(fps), int(substeps), n)
+    """Frames covering the whole load (its duration, rounded up to a frame) plus ``extra_frames``.
+
+    A grid past :data:`mlsim.plausibility.MAX_SOLVE_STEPS` steps is a :class:`SolverError` before any
+    array of its times is made (a scene's check refuses it first; a load built in code is not checked:
+    a slide at 1e-9 mm/s asked numpy for 335 GiB of step times)."""
+    frames = cost_model.episode_frames(load.duration_s, fps, extra_frames)
+    steps = cost_model.solve_steps(frames, substeps)
+    if steps > plausibility.MAX_SOLVE_STEPS:
+        raise SolverError(f"the load lasts {load.duration_s:.4g} s: {frames:.4g} frames at {fps:g} FPS, {steps:.4g} solve steps with "
+                          f"{substeps} substeps, past the limit of {plausibility.MAX_SOLVE_STEPS} (mlsim.plausibility); shorten the load")
+    return TimeGrid(float(fps), int(substeps), int(frames))
 
 
 def initial_state(load, tip_height_m: float) -> IndenterState:

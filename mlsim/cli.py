@@ -74,6 +74,10 @@ def cmd_check(args) -> int:
     if scene.load is not None:
         frames = scene.load.duration_s * scene.camera.fps
         print(f"load duration            = {scene.load.duration_s:.4g} s ({frames:.0f} frames at {scene.camera.fps:g} FPS)")
+    from mlsim.plausibility import warnings  # plausible but expensive (issue 39)
+
+    for line in warnings(scene):
+        print(f"warning: {line}")
     print("\n# materials")
     for region in ("core", "ml_layer", "absorber"):
         m = scene.material(region)
@@ -89,12 +93,19 @@ def cmd_run(args, outputs=None, out_suffix: str = "") -> int:
     scene = _load(args)
     outputs = outputs or _outputs(args, scene)
     cache = _cache(args)
-    if args.dry_run:
+    from mlsim import run_budget  # the cost before the run, and its budget (issue 39)
+
+    steps = pipeline.plan(scene, cache, outputs)
+    estimate = run_budget.estimate(scene, steps)
+    if args.dry_run:  # the plan, then each stage's cost (one print: mlsim.dry_run)
         from mlsim.dry_run import print_plan
 
-        return print_plan(scene, cache, outputs, args.scene)
+        return print_plan(scene, cache, outputs, args.scene, steps=steps, estimate=estimate)
+    budget = getattr(args, "max_memory_gb", None), getattr(args, "max_frames", None), getattr(args, "over_budget", False)
+    run_budget.enforce(estimate, *budget)  # mesh has no budget flags: the default memory budget
     out_dir = Path(args.out) if args.out else Path("out") / f"{scene.name}{out_suffix}"
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    log(estimate.headline())
     result = pipeline.run(scene, out_dir, cache, outputs, progress=not args.quiet, log=log, scene_path=str(args.scene))
     if not args.quiet:
         for name, files in result.files.items():
@@ -327,6 +338,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = verb("run", "run the stages the scene's outputs need", cmd_run, "out/<scene name>")
     p.add_argument("--outputs", action="append", help="products to write instead of the scene's (comma-separated)")
+    p.add_argument("--max-memory-gb", type=float, metavar="GB", help="refuse a run expected to need more (default: half the machine's memory)")
+    p.add_argument("--max-frames", type=int, metavar="N", help="refuse a run of more frames")
+    p.add_argument("--over-budget", action="store_true", help="run even past --max-memory-gb / --max-frames")
 
     verb("check", "validate a scene and print it resolved, with units", cmd_check)
     verb("mesh", "build the tet mesh, report its quality, write VTU", cmd_mesh, "out/<scene name>_mesh")

@@ -48,7 +48,8 @@ SHARED_FLAGS: dict[str, tuple[str, ...]] = {
 #: verb -> example command lines shown in its ``--help``.
 EXAMPLES: dict[str, tuple[str, ...]] = {
     "run": ("mlsim run scenes/mavig_tiny.toml --dry-run", "mlsim run scenes/mavig_default.toml --out out/demo",
-            "mlsim run scenes/mavig_default.toml --set sensor.rod.height_mm=12 --outputs mesh"),
+            "mlsim run scenes/mavig_default.toml --set sensor.rod.height_mm=12 --outputs mesh",
+            "mlsim run scenes/mavig_default.toml --max-memory-gb 8 --max-frames 600"),
     "check": ("mlsim check scenes/mavig_default.toml", "mlsim check scenes/mavig_tiny.toml --set sensor.rows=3"),
     "mesh": ("mlsim mesh scenes/mavig_tiny.toml", "mlsim mesh scenes/mavig_default.toml --set fidelity.mesh.edge_length_mm=1.5 --dry-run"),
     "accuracy": ("mlsim accuracy scenes/mavig_tiny.toml --stage solve --edges 3.0 2.5 --out out/acc",
@@ -73,6 +74,10 @@ _HELP = {
     "--cache": "stage cache folder (default $MLSIM_CACHE_DIR or ~/.cache/mlsim)",
     "--quiet": "no progress bars or log lines",
 }
+
+#: the verbs whose --dry-run also prints each stage's cost estimate (issue 39: mlsim.run_budget)
+_DRY_RUN_HELP = {v: "print the plan, what is cached and each stage's cost estimate (frames, steps, tets, memory, time); run nothing"
+                 for v in ("run", "mesh")}
 
 
 def default_workers() -> int:
@@ -108,7 +113,7 @@ def add_shared(p: argparse.ArgumentParser, verb: str, *, out_default: str = "", 
     if "--set" in flags:
         p.add_argument("--set", action="append", metavar="PATH=VALUE", help=_HELP["--set"])
     if "--dry-run" in flags:
-        p.add_argument("--dry-run", action="store_true", help=_HELP["--dry-run"])
+        p.add_argument("--dry-run", action="store_true", help=_DRY_RUN_HELP.get(verb, _HELP["--dry-run"]))
     if "--out" in flags:
         p.add_argument("--out", metavar="DIR", help=f"output folder (default {out_default})")
     if "--workers" in flags:

@@ -8,17 +8,22 @@ from pathlib import Path
 __all__ = ["print_plan", "study_plan", "dataset_plan", "sweep_plan"]
 
 
-def print_plan(scene, cache, outputs, label: str) -> int:
-    """The pipeline's plan for ``scene``: each stage, cached or to run, its key and what it reads."""
+def print_plan(scene, cache, outputs, label: str, steps=None, estimate=None) -> int:
+    """The pipeline's plan for ``scene``: each stage, cached or to run, its key and what it reads;
+    given ``estimate`` (:func:`mlsim.run_budget.estimate`, ``mlsim run`` and ``mesh``), then the cost of
+    each stage to run: frames, steps, tets, memory and time. ``steps``: the plan, if already made."""
     from mlsim import pipeline
 
-    steps = pipeline.plan(scene, cache, outputs)
+    if steps is None:
+        steps = pipeline.plan(scene, cache, outputs)
     print(f"plan for {label} (cache: {cache.root}):")
     for s in steps:
         what = "cached  " if s.action == "load" else "to run  "
         mark = "*" if s.requested else " "
         print(f"  {mark} {s.stage.name:<10} {what} key {s.key[:12]}  reads {', '.join(s.stage.reads)}")
     print("  (* = requested output)")
+    if estimate is not None:
+        print("\n".join([estimate.headline(), *estimate.table()]))
     return 0
 
 

@@ -833,18 +833,25 @@ def check_consistency(scene: Scene) -> list[Problem]:
         problems.append(
             Problem("fidelity.mesh.edge_length_mm", mesh.edge_length_mm, f"must be <= the rod diameter ({s.rod.diameter_mm:g} mm) to resolve the rods")
         )
-    volume_mm3 = s.size_x_mm * s.size_y_mm * s.base.thickness_mm + s.n_rods * math.pi * radius**2 * s.rod.height_mm
-    regular_tet_mm3 = mesh.edge_length_mm**3 / (6 * math.sqrt(2))
-    if volume_mm3 / regular_tet_mm3 > 5e6:
+    volume_mm3 = s.size_x_mm * s.size_y_mm * s.base.thickness_mm + s.n_rods * math.pi * radius * radius * s.rod.height_mm
+    # products, not powers: a float power past 1e308 raises OverflowError where a product is inf; an
+    # edge below 1e-103 mm cubes to 0.0 (inf tets); inf / inf is NaN, refused too
+    regular_tet_mm3 = mesh.edge_length_mm * mesh.edge_length_mm * mesh.edge_length_mm / (6 * math.sqrt(2))
+    n_tets = volume_mm3 / regular_tet_mm3 if regular_tet_mm3 > 0 else math.inf
+    if not n_tets <= 5e6:
         problems.append(
             Problem(
                 "fidelity.mesh.edge_length_mm",
                 mesh.edge_length_mm,
-                f"would give about {volume_mm3 / regular_tet_mm3:.3g} tetrahedra (limit 5e6); use a larger edge length",
+                f"would give about {n_tets:.3g} tetrahedra (limit 5e6); use a larger edge length",
             )
         )
     if mesh.resolved_envelope_mm >= min(s.layers.ml_mm, radius) and mesh.envelope_mm is not None:
         problems.append(Problem("fidelity.mesh.envelope_mm", mesh.envelope_mm, f"must be < the ML layer ({s.layers.ml_mm:g} mm)"))
+    if not problems:  # a load off the sensor, an episode or a run too large for any machine (mlsim.plausibility)
+        from mlsim.plausibility import problems as implausible
+
+        problems = implausible(scene)
     if not problems:  # the kind's own checks (fem: the nonlinear tier's dynamics step) on an otherwise sound scene
         from mlsim.stage import kind
 
@@ -869,9 +876,15 @@ def _problems_from_pydantic(exc: ValidationError) -> list[Problem]:
         loc = list(err["loc"])
         # Discriminated unions put the tag in the location: load.segments.0.press.speed_mm_s.
         clean = [p for i, p in enumerate(loc) if not (p in _TAGS and i > 0 and (isinstance(loc[i - 1], int) or loc[i - 1] == "indenter"))]
+        # a union of value types (a number or "off") names its branches in the location too:
+        # transport_max_displacement_mm.constrained-float, ...literal['off']: the field is the path
+        clean = [p for p in clean if not (isinstance(p, str) and not p.isidentifier())]
         path = _join_path(clean)
         problems.append(Problem(path or "<scene>", err.get("input"), _message(err, clean)))
-    return problems
+    merged: dict = {}  # one line per field: the union's branches joined ("must be > 0, or must be one of: 'off'")
+    for p in problems:
+        merged[p.path] = Problem(p.path, p.value, f"{merged[p.path].message}, or {p.message}") if p.path in merged else p
+    return list(merged.values())
 
 
 _BOUNDS = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<", "less_than_equal": "<="}

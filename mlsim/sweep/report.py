@@ -33,6 +33,7 @@ def rows(records: list[dict], varies, load_names: list[str]) -> list[dict]:
         for v in varies:
             row[v.name] = rec["values"].get(v.path)
         reasons = [] if rec.get("buildable", True) else [f"refused: {rec['reason']}"]
+        reasons += [rec["reason"]] if rec.get("retry") else []  # its process was killed (mlsim.sweep.isolated)
         risks = []
         for name in load_names:
             r = rec.get("loads", {}).get(name)

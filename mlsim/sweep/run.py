@@ -35,7 +35,7 @@ from mlsim.io import atomic_bytes
 from mlsim.sweep import metrics
 from mlsim.sweep.variants import Variant, Vary
 
-__all__ = ["Load", "read_load", "SCENES", "DEFAULT_LOADS", "DEFAULT_DIRECTION", "DEFAULT_ANGLES", "METRICS", "run_variant_job", "sweep",
+__all__ = ["Load", "read_load", "SCENES", "DEFAULT_LOADS", "DEFAULT_DIRECTION", "DEFAULT_ANGLES", "METRICS", "run_variant_job", "variant_record", "sweep",
            "stored_records"]
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
@@ -163,6 +163,17 @@ def _guarded(fn, *args) -> dict:
 
 
 def run_variant_job(job: dict) -> dict:
+    """One variant in a process of its own (:mod:`mlsim.sweep.isolated`; ``job["isolated"] = False``:
+    in this one): its record, or, when that process is killed (out of memory, a signal), a record
+    with the reason that a rerun retries."""
+    if not job.get("isolated", True):
+        return variant_record(job)
+    from mlsim.sweep.isolated import run_isolated
+
+    return run_isolated("mlsim.sweep.run:variant_record", job, label=f"sweep variant {job['variant_id']} {job['episode_id']}")
+
+
+def variant_record(job: dict) -> dict:
     """One variant: ``job`` holds ``scene`` (a scene dict), ``loads`` and ``direction`` (Load dicts),
     ``angles``, ``metrics``, ``cache_dir``. Returns the variant's record (JSON-ready)."""
     from mlsim.scene import scene_from_dict
@@ -252,7 +263,7 @@ def sweep(base, varies: list[Vary], out_dir: str | Path, *, mode: str = "grid", 
     for v in vs:
         if v.scene is None and v.variant_id not in done:
             _store(out, v, {"loads": {}, "seconds": 0.0}, base_hash)
-    done = stored_records(out)
+    done = {k: r for k, r in stored_records(out).items() if not r.get("retry")}  # a killed variant runs again
     todo = [v for v in vs if v.variant_id not in done]
     if limit is not None:
         todo = todo[: max(int(limit), 0)]
@@ -272,6 +283,7 @@ def sweep(base, varies: list[Vary], out_dir: str | Path, *, mode: str = "grid", 
             v = by_id[job["variant_id"]]
             _store(out, v, record, base_hash)
             failed = [f"{name}: {r['reason']}" for name, r in _parts(record) if not r.get("ok", True)]
+            failed += [record["reason"]] if record.get("retry") else []
             log(f"[sweep] {v.label}: {record['seconds']:.0f} s" + (f"; failed {'; '.join(failed)}" if failed else ""))
             bar.update(1)
     finally:
@@ -280,7 +292,9 @@ def sweep(base, varies: list[Vary], out_dir: str | Path, *, mode: str = "grid", 
     records = stored_records(out)
     order = {v.variant_id: v.index for v in vs}
     records = [records[k] for k in sorted(records, key=lambda k: order.get(k, 1 << 30)) if k in order]
-    summary = {"variants": len(vs), "stored": len(records), "complete": len(records) == len(vs), "wall_s": round(wall, 2),
+    killed = [r["variant_id"] for r in records if r.get("retry")]
+    summary = {"variants": len(vs), "stored": len(records), "complete": len(records) == len(vs) and not killed, "killed": killed,
+               "wall_s": round(wall, 2),
                "run_now": len(todo), "workers": workers, "executor": executor}
     files = write_report(out, records, varies, meta, summary)
     summary["files"] = [str(f) for f in files]

@@ -1,0 +1,116 @@
+"""A run's cost before it starts, and its budget (orchestration layer).
+
+:func:`estimate` prices the stages a plan will run (those it loads from the cache cost nothing) with
+:mod:`mlsim.cost_model`; ``mlsim run --dry-run`` prints the table and every run's log starts with
+its one-line total. :func:`enforce` refuses a run past its budget before anything runs: the memory
+budget (``--max-memory-gb``, by default ``MEMORY_FRACTION`` of this machine's memory) and, when
+given, a frame budget (``--max-frames``); ``--over-budget`` runs it anyway.
+
+The run keeps every stage's result until it ends (:func:`mlsim.pipeline.run`), so its expected peak
+is the sum of the stages' memory, plus the interpreter and the libraries it imports (``BASE_BYTES``).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from mlsim.cost_model import GB, StageCost, stage_cost
+from mlsim.errors import Problem, SceneError
+
+__all__ = ["RunEstimate", "estimate", "enforce", "machine_memory_bytes", "default_max_memory_gb", "MEMORY_FRACTION", "BASE_BYTES"]
+
+# Half the machine by default: a run shares it (the other agents of a shared machine, the other
+# workers of a sweep or a dataset, each its own run), and the estimate is good to a factor of two.
+MEMORY_FRACTION = 0.5
+# python, numpy, scipy, pydantic and the project's modules imported: about 0.3 GB resident
+BASE_BYTES = 0.3 * GB
+
+
+def machine_memory_bytes() -> float:
+    """This machine's physical memory (bytes)."""
+    return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+
+
+def default_max_memory_gb() -> float:
+    """The default memory budget of a run: ``MEMORY_FRACTION`` of the machine's memory, GB."""
+    return MEMORY_FRACTION * machine_memory_bytes() / GB
+
+
+@dataclass(frozen=True)
+class RunEstimate:
+    """The stages to run with their costs (None: no cost model for that stage) and the totals."""
+
+    rows: tuple[tuple[str, StageCost | None], ...]
+
+    @property
+    def memory_bytes(self) -> float:
+        return BASE_BYTES + sum(c.memory_bytes for _, c in self.rows if c is not None)
+
+    @property
+    def seconds(self) -> float:
+        return sum(c.seconds for _, c in self.rows if c is not None)
+
+    @property
+    def frames(self) -> int:
+        return max((c.frames or 0 for _, c in self.rows if c is not None), default=0)
+
+    def headline(self) -> str:
+        unmodelled = [name for name, c in self.rows if c is None]
+        return (f"estimate: {_duration(self.seconds)} and {self.memory_bytes / GB:.2g} GB peak for {len(self.rows)} stage(s) to run"
+                + (f" ({', '.join(unmodelled)}: not modelled)" if unmodelled else "") + " (mlsim.cost_model, 2 cores; within 2x)")
+
+    def table(self) -> list[str]:
+        lines = [f"  {'stage':<12} {'frames':>8} {'steps':>8} {'tets':>9} {'memory':>10} {'time':>10}  note"]
+        for name, c in self.rows:
+            if c is None:
+                lines.append(f"  {name:<12} {'':>8} {'':>8} {'':>9} {'-':>10} {'-':>10}  no cost model")
+                continue
+            lines.append(f"  {name:<12} {_n(c.frames):>8} {_n(c.steps):>8} {_n(c.tets):>9} {_bytes(c.memory_bytes):>10} "
+                         f"{_duration(c.seconds):>10}  {c.note}".rstrip())
+        lines.append(f"  {'total':<12} {self.frames:>8} {'':>8} {'':>9} {_bytes(self.memory_bytes):>10} {_duration(self.seconds):>10}"
+                     "  (memory: every stage's result is kept, plus the interpreter)")
+        return lines
+
+
+def estimate(scene, steps) -> RunEstimate:
+    """The cost of the plan ``steps`` (:func:`mlsim.pipeline.plan`): the stages it runs."""
+    return RunEstimate(tuple((s.stage.name, stage_cost(scene, s.stage.name)) for s in steps if s.action == "run"))
+
+
+def enforce(est: RunEstimate, max_memory_gb: float | None = None, max_frames: int | None = None, over_budget: bool = False) -> None:
+    """Refuse (a :class:`SceneError`, exit code 2) a run expected to pass its budget, unless ``over_budget``."""
+    for flag, value in (("--max-memory-gb", max_memory_gb), ("--max-frames", max_frames)):
+        if value is not None and not value > 0:
+            raise SceneError([Problem(flag, value, "must be > 0")])
+    budget_gb = default_max_memory_gb() if max_memory_gb is None else float(max_memory_gb)
+    problems = []
+    if est.memory_bytes > budget_gb * GB:
+        worst = max((c for _, c in est.rows if c is not None), key=lambda c: c.memory_bytes, default=None)
+        most = f"most for the {worst.stage} stage: {worst.memory_bytes / GB:.3g} GB" if worst is not None else "the interpreter alone"
+        problems.append(Problem("--max-memory-gb", round(budget_gb, 3),
+                                f"the run is expected to need {est.memory_bytes / GB:.3g} GB ({most}) within a budget of {budget_gb:.3g} GB"
+                                f"{' (default: ' + format(MEMORY_FRACTION, 'g') + ' of this machine)' if max_memory_gb is None else ''}; "
+                                "shorten the load, coarsen the mesh or shrink the camera, or raise --max-memory-gb, or run it anyway "
+                                "with --over-budget"))
+    if max_frames is not None and est.frames > max_frames:
+        problems.append(Problem("--max-frames", max_frames, f"the run has {est.frames} frames; shorten the load, raise --max-frames "
+                                "or run it anyway with --over-budget"))
+    if problems and not over_budget:
+        raise SceneError(problems, source="(run budget)")
+
+
+def _n(value) -> str:
+    return "" if value is None else f"{value:,}"
+
+
+def _bytes(value: float) -> str:
+    return f"{value / GB:.3g} GB" if value >= 0.1 * GB else f"{value / 1024**2:.3g} MB"
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.3g} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.3g} min"
+    return f"{seconds / 3600:.3g} h"
