@@ -52,8 +52,9 @@ class Sphere:
 
     def height(self, xy: np.ndarray) -> np.ndarray:
         rho2 = np.sum((xy - np.asarray(self.centre[:2])) ** 2, axis=1)
-        inside = rho2 <= self.radius**2
-        return np.where(inside, self.centre[2] + np.sqrt(np.maximum(self.radius**2 - rho2, 0.0)), -np.inf)
+        r2 = self.radius * self.radius  # a product: a float power past 1e308 raises OverflowError, a product is inf
+        inside = rho2 <= r2
+        return np.where(inside, self.centre[2] + np.sqrt(np.maximum(r2 - rho2, 0.0)), -np.inf)
 
 
 @dataclass(frozen=True)
