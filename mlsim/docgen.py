@@ -328,6 +328,7 @@ SLOW_BENCHMARKS: dict[str, str] = {
     "bench_solvers.py": "every sparse solver on the default sensor's matrices, each in its own process: about 6.5 min",
     "bench_render_device.py": "the path tier on an NVIDIA GPU against the CPU (benchmarks/device/)",
     "calibrate_brightness.py": "reproduces emission.brightness_photons_per_m2 (a calibration, not a timing)",
+    "bench_cost_model.py": "the tiny, demo and screw scenes each run whole from an empty cache in a fresh process: about 19 min on 2 shared cores",
     "bench_elastica_pyelastica.py": "needs PyElastica (the `bench` extra); an explicit Cosserat rod to rest, minutes per load",
 }
 
