@@ -134,6 +134,10 @@ NONLINEAR_MIN_STEP_N = 1e-3
 #: more and the elements at the bonded sharp edges crush at smaller forces; the ratio's force
 #: dependence, which the tier is for, is a global (bending, tilting) effect that 1 mm resolves.
 NONLINEAR_EDGE_MM = 1.0
+#: Halvings of a failing step, from a state already strained past the elastomer's elongation at break,
+#: after which the continuation ends there as a physical limit (:func:`_load_path`): a step of 1 / 8
+#: of the one that failed still fails, in a material past its range.
+PAST_RANGE_HALVINGS = 3
 #: Newton iterations per load step: near the bonded edges, where det F approaches 0, Newton's
 #: convergence is slow but steady (measured: 18 iterations for the 1 N step of the 1 mm block),
 #: and a genuinely diverging step stops earlier (:class:`fem.nonlinear.FullStepNewton`).
@@ -661,11 +665,15 @@ def _load_path(
     history: list | None = None,
     max_step: float | None = None,
     log: Callable[[str], None] = lambda m: None,
+    past_range: Callable[[np.ndarray], bool] | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Continue the equilibrium in the load parameter from lam0 (state x0) to lam1 (external(lam)
     -> (n,)), in steps starting at ``first_step``, halved on failure down to ``min_step`` (then
     :class:`fem.nonlinear.SolverError`, whose ``load_factor_reached`` is the last converged
-    fraction of the way), grown by 1.5 after an easy step up to ``max_step``.
+    fraction of the way), grown by 1.5 after an easy step up to ``max_step``. A step that fails from
+    a state ``past_range`` says is outside the material's range (torn) ends the path there after
+    :data:`PAST_RANGE_HALVINGS` halvings: halving on into a torn solid costs minutes and answers nothing
+    physical (the S2 slide crept from 4 N to 4.07 N in 30 minutes of halvings).
 
     Predictor: the secant through the last two converged states (``history``, a list of (lam, x)
     shared by successive calls: the path is continued across the forces), which follows a body
@@ -679,6 +687,7 @@ def _load_path(
     max_step = abs(lam1 - lam0) if max_step is None else max_step
     x, lam, step = x0.copy(), lam0, min(first_step, max_step)
     report = {"increments": 0, "newton_iterations": 0, "cuts": 0, "smallest_step": None}
+    cuts_here = 0  # halvings since the last converged step
     while lam < lam1 - 1e-12 * max(1.0, abs(lam1)):
         lam_next = min(lam1, lam + step)
         if lam1 - lam_next < 0.25 * step:  # no sliver of a last step
@@ -698,11 +707,18 @@ def _load_path(
             history.append((lam, x))
             del history[:-2]
             report["increments"] += 1
+            cuts_here = 0
             report["smallest_step"] = done if report["smallest_step"] is None else min(report["smallest_step"], done)
             if its <= 5:  # an easy increment: take a longer one next
                 step = min(1.5 * step, max_step)
             continue
         report["cuts"] += 1
+        cuts_here += 1
+        if past_range is not None and cuts_here >= PAST_RANGE_HALVINGS and past_range(x):
+            exc = SolverError(f"{case}: the step {lam:.4g} -> {lam_next:.4g} failed ({why}) after {cuts_here} halvings, from a state "
+                              "outside the material's range")
+            exc.load_factor_reached = (lam - lam0) / (lam1 - lam0)
+            raise exc
         log(f"verify_s2: {case}: step {lam:.4g} -> {lam_next:.4g} failed ({why}); halving")
         step = 0.5 * (lam_next - lam)
         if step < min_step:
@@ -719,6 +735,7 @@ def solve_nonlinear_tier(
     log: Callable[[str], None] = lambda m: None,
     max_iterations: int = NONLINEAR_MAX_ITERATIONS,
     min_step_n: float = NONLINEAR_MIN_STEP_N,
+    elongation_at_break: float | None = None,
 ) -> tuple[np.ndarray, list[dict]]:
     """Finite-strain states (K, n) at each force (NaN rows where not converged), and a report per force.
 
@@ -733,6 +750,12 @@ def solve_nonlinear_tier(
     the failure). Report per force: converged, increments, Newton iterations, cuts, seconds,
     ``min_det_f`` (:func:`min_det_f`); if not converged, the message and (for the force that
     failed) the largest force reached, ``reached_n``. max_iterations: per Newton solve.
+
+    Where the continuation ends, the state it reached is read for a physical limit
+    (:func:`physical_limit`): with ``elongation_at_break`` given and the elastomer strained past it
+    there, the report says so (``physical_limit``: where, at what force it first tore, how crushed
+    the worst element is) instead of leaving a bare solver message: past a torn material no solid
+    model answers, and the continuation's failure there is the model's edge, not a defect.
     """
     from fem.nonlinear import SolverError
 
@@ -750,10 +773,18 @@ def solve_nonlinear_tier(
         failed, x, rep_g = 0.0, None, {"message": str(exc)}
     history: list = [(0.0, x)]
     f_prev, pending = 0.0, dict(rep_g)
+    torn_at = None  # the first force whose state strains the elastomer past its elongation at break
+    stopped_physically = False
+
+    def past_range(x_state):
+        return bool(elongation_at_break) and strain_beyond_break(s, x_state, elongation_at_break, finite=True)[1] > 0.0
+
     for k in order:
         f_k = forces[k]
         if failed is not None:
             why = f"the load path failed on the way to {failed:g} N" if failed > 0 else f"gravity alone did not converge: {rep_g['message']}"
+            if failed > 0 and stopped_physically:
+                why = f"the path stopped at a physical limit on the way to {failed:g} N (the elastomer tore)"
             reports[k] = {"converged": False, "message": f"not attempted: {why}"}
             continue
         if f_k == f_prev and f_prev > 0:  # a repeated force: the same state
@@ -765,21 +796,52 @@ def solve_nonlinear_tier(
             x_new, rep = _load_path(
                 s, x, lambda f: s.gravity + f * s.unit_force, f_prev, f_k, span / increments, min(min_step_n, span / increments),
                 f"{s.case} (nonlinear) at {f_k:g} N", max_iterations, history, max_step=max(span / 2, f_prev / 2), log=log,
+                past_range=past_range,
             )
         except SolverError as exc:
             failed = f_k
             reached = f_prev + getattr(exc, "load_factor_reached", 0.0) * span
             reports[k] = {"converged": False, "message": str(exc), "reached_n": reached, "seconds": time.perf_counter() - t0}
-            log(f"verify_s2: {exc}")
+            limit = physical_limit(s, history[-1][1], history[-1][0], elongation_at_break, torn_at) if elongation_at_break else None
+            if limit is not None:
+                reports[k].update(physical_limit=limit, message=f"{limit} (the continuation's last word: {exc})")
+                stopped_physically = True
+            log(f"verify_s2: {reports[k]['message']}")
             continue
         if pending:  # the gravity ramp's work is reported with the first force
             rep = {**rep, "gravity_newton_iterations": pending["newton_iterations"]}
             pending = {}
         x, f_prev = x_new, f_k
+        if elongation_at_break and torn_at is None and strain_beyond_break(s, x, elongation_at_break, finite=True)[1] > 0.0:
+            torn_at = f_k
         states[k] = x
         reports[k] = {"converged": True, **rep, "min_det_f": min_det_f(s, x), "seconds": time.perf_counter() - t0}
         log(f"verify_s2: {s.case} (nonlinear) at {f_k:g} N: {rep['increments']} increments, {rep['newton_iterations']} Newton iterations")
     return states, reports
+
+
+def physical_limit(s: CaseSystem, x: np.ndarray, force_n: float, elongation_at_break: float, torn_at_n: float | None) -> str | None:
+    """What stops the elastomer at the state x reached under ``force_n`` newtons, or None if nothing does.
+
+    A state that strains the elastomer (label 0) past its elongation at break (the stretch minus one,
+    :func:`principal_strain`) is past the material's range: the sentence names the force, the volume
+    past break, the largest strain and where it is, the force at which the path first tore it
+    (``torn_at_n``, None: not at any of the requested forces) and the smallest det F and where (an
+    element crushed at the bonded edge, the next to invert). Points are in mm, slab coordinates."""
+    eps = principal_strain(s, x, finite=True)
+    elastomer = (s.mesh.label == 0)[:, None] & np.ones_like(eps, dtype=bool)
+    beyond = np.asarray(s.d.u.dx)[elastomer.reshape(eps.shape) & (eps > elongation_at_break)].sum() * 1e9
+    if beyond <= 0.0:
+        return None
+    where = np.asarray(s.d.u.mapping.F(s.d.u.quadrature[0])) * 1e3  # (3, T, Q) mm
+    e_at = np.unravel_index(np.argmax(np.where(elastomer, eps, -np.inf)), eps.shape)
+    J = np.linalg.det(_displacement_gradient(s, x) + np.eye(3))
+    j_at = np.unravel_index(np.argmin(J), J.shape)
+    first = f"first at {torn_at_n:g} N" if torn_at_n is not None else "already at the first force on the path"
+    return (f"{s.case} stops at a physical limit near {force_n:.3g} N: the elastomer is strained past its elongation at break "
+            f"({elongation_at_break:.1%}) over {beyond:.3g} mm^3 ({first}), its largest principal strain {eps[e_at]:.0%} at "
+            f"({', '.join(f'{c:.2f}' for c in where[:, e_at[0], e_at[1]])}) mm, and an element crushed to det F = {J[j_at]:.2g} at "
+            f"({', '.join(f'{c:.2f}' for c in where[:, j_at[0], j_at[1]])}) mm: the material would have torn before this force")
 
 
 def _displacement_gradient(s: CaseSystem, x: np.ndarray) -> np.ndarray:
@@ -1081,11 +1143,13 @@ def run(
                         strain = strain_magnitude(s, states[int(np.argmax(forces))])
                         result.checks["pressing_block_over_slab_max_strain"] = float(strain[s.mesh.label == 1].max() / strain[s.mesh.label == 0].max())
                 else:
-                    states, reps = solve_nonlinear_tier(s, forces, log=log)
+                    states, reps = solve_nonlinear_tier(s, forces, log=log, elongation_at_break=result.elongation_at_break)
                     result.nonlinear[case] = [{"force_n": float(f), **r} for f, r in zip(forces, reps)]
                     ok = np.array([r["converged"] for r in reps])
                     for f, r in zip(forces, reps):
-                        if not r["converged"]:
+                        if not r["converged"] and r.get("physical_limit"):
+                            result.messages.append(f"nonlinear {case} at {f:g} N: {r['physical_limit']}")
+                        elif not r["converged"]:
                             result.messages.append(f"nonlinear {case} at {f:g} N did not converge: {r['message']}")
                         elif r["min_det_f"] < MIN_DET_F_WARNING:
                             result.messages.append(

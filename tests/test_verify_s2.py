@@ -265,6 +265,24 @@ def test_volume_beyond_break_is_the_elastomer_past_the_limit(pressing):
     assert v.strain_beyond_break(pressing, x, 2 * c * 10e-3, finite=False)[1] == 0.0
 
 
+def test_a_torn_state_is_stated_as_a_physical_limit(pressing):
+    """The continuation's end read physically: with the slab strained past break over x > 7 mm (u_x = c x^2,
+    as above) the sentence gives the force, the 60 mm^3 past break, the force it first tore at, the
+    largest strain (89 %) at the quadrature point nearest the slab's far end (x = 9.93 mm) and the least det F; within the
+    limit there is no physical limit (None), and the solver's failure stays a solver's failure."""
+    limit = 0.631
+    c = limit / (2 * 7e-3)
+    x = np.zeros(pressing.d.n_dofs)
+    comp = dof_components(pressing.d.u)
+    along_x = comp == 0
+    x[: pressing.d.n_u][along_x] = c * pressing.d.u.doflocs[0, along_x] ** 2
+    said = v.physical_limit(pressing, x, 4.2, limit, 4.0)
+    assert said.startswith("pressing stops at a physical limit near 4.2 N: the elastomer is strained past its elongation at break (63.1%)")
+    assert "over 60 mm^3 (first at 4 N)" in said and "largest principal strain 89% at (9.9" in said  # 2 c x at the last point, 9.93 mm
+    assert "crushed to det F = 1" in said  # this state only stretches: nothing is crushed
+    assert v.physical_limit(pressing, x, 4.2, 0.95, None) is None
+
+
 def test_the_spec_forces_strain_pdms_beyond_its_break(linear_run):
     """SPEC 1.4's forces on SPEC 1.2's PDMS (elongation at break < 63.1 %): already at 1 N both cases
     strain some PDMS beyond break (at the bonded edges), and the torn volume grows with the force.
