@@ -1,4 +1,4 @@
-"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | sweep | train | evaluate | ablation``.
+"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | sweep | detect | train | evaluate | ablation``.
 
 Exit codes: 0 success, 2 bad input (an invalid scene or argument; the message names the field),
 1 failure (a stage could not finish; the message says what to try). Unexpected errors are bugs:
@@ -319,6 +319,14 @@ def cmd_sweep(args) -> int:
     return EXIT_OK
 
 
+def cmd_detect(args) -> int:
+    from mlsim.detect import run_command
+    from mlsim.scene import Scene, load_scene
+
+    sets = _parse_sets(args.set)
+    return run_command(args, load_scene(args.scene, overrides=sets) if args.scene else Scene().with_values(sets))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mlsim", description="Simulate the mechanoluminescent visuotactile sensor.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -414,6 +422,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--address", help="Ray cluster address (default: start a local Ray)")
     p.add_argument("--cache", help="cache directory (default $MLSIM_CACHE_DIR or ~/.cache/mlsim); variants share what they do not change")
     p.set_defaults(func=cmd_sweep)
+    from mlsim.detect import add_parser as add_detect_parser  # mlsim detect (issue 41): real recordings
+
+    add_detect_parser(sub, cmd_detect)
     try:
         from classifiers.cli import add_parsers
     except ImportError:
