@@ -1,4 +1,4 @@
-"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | sweep | detect | train | evaluate | ablation``.
+"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | sweep | detect | calibrate | train | evaluate | ablation``.
 
 Exit codes: 0 success, 2 bad input (an invalid scene or argument; the message names the field),
 1 failure (a stage could not finish; the message says what to try). Unexpected errors are bugs:
@@ -327,6 +327,15 @@ def cmd_detect(args) -> int:
     return run_command(args, load_scene(args.scene, overrides=sets) if args.scene else Scene().with_values(sets))
 
 
+def cmd_calibrate(args) -> int:
+    from mlsim.sensor_calibration import calibrate_sensor
+
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    fit = calibrate_sensor(args.photo, args.scene, Path(args.out), idle=args.idle, cache=_cache(args), log=log)
+    print(f"focal length {fit['focal_length_mm']:.4f} +- {fit['focal_length_sigma_mm']:.2g} mm; wrote {Path(args.out) / 'sensor.toml'}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mlsim", description="Simulate the mechanoluminescent visuotactile sensor.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -425,6 +434,14 @@ def build_parser() -> argparse.ArgumentParser:
     from mlsim.detect import add_parser as add_detect_parser  # mlsim detect (issue 41): real recordings
 
     add_detect_parser(sub, cmd_detect)
+    p = sub.add_parser("calibrate", help="a scene overlay for a real sensor from its calibration photo (the camera's view) and idle video (dark noise)")
+    p.add_argument("--photo", required=True, help="the calibration photo (the sensor without its absorber, lit; SPEC 1.6)")
+    p.add_argument("--scene", required=True, help="the sensor's scene (TOML): the rods' layout and the camera distance")
+    p.add_argument("--idle", metavar="VIDEO", help="an idle recording at the scene's camera settings: black level and read noise")
+    p.add_argument("--out", default="out/calibrate", help="output directory: sensor.toml (the overlay), calibration_fit.json")
+    p.add_argument("--cache", help="cache directory (the scene's own calibration frame is rendered through it)")
+    p.add_argument("--quiet", action="store_true", help="no log lines")
+    p.set_defaults(func=cmd_calibrate)
     try:
         from classifiers.cli import add_parsers
     except ImportError:
