@@ -331,7 +331,8 @@ def cmd_calibrate(args) -> int:
     from mlsim.sensor_calibration import calibrate_sensor
 
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
-    fit = calibrate_sensor(args.photo, args.scene, Path(args.out), idle=args.idle, cache=_cache(args), log=log)
+    fit = calibrate_sensor(args.photo, args.scene, Path(args.out), idle=args.idle, press=args.press, force_n=args.force_n,
+                           cache=_cache(args), log=log)
     print(f"focal length {fit['focal_length_mm']:.4f} +- {fit['focal_length_sigma_mm']:.2g} mm; wrote {Path(args.out) / 'sensor.toml'}")
     return EXIT_OK
 
@@ -434,10 +435,12 @@ def build_parser() -> argparse.ArgumentParser:
     from mlsim.detect import add_parser as add_detect_parser  # mlsim detect (issue 41): real recordings
 
     add_detect_parser(sub, cmd_detect)
-    p = sub.add_parser("calibrate", help="a scene overlay for a real sensor from its calibration photo (the camera's view) and idle video (dark noise)")
+    p = sub.add_parser("calibrate", help="a scene overlay for a real sensor from its calibration photo (the camera's view), idle video (dark noise) and a press of known force (ML brightness)")
     p.add_argument("--photo", required=True, help="the calibration photo (the sensor without its absorber, lit; SPEC 1.6)")
     p.add_argument("--scene", required=True, help="the sensor's scene (TOML): the rods' layout and the camera distance")
     p.add_argument("--idle", metavar="VIDEO", help="an idle recording at the scene's camera settings: black level and read noise")
+    p.add_argument("--press", metavar="VIDEO", help="a recorded press (its first second idle) of the scene's [load]: the ML brightness")
+    p.add_argument("--force-n", type=float, metavar="F", help="the press's force (N), set on the [load]'s force-controlled press")
     p.add_argument("--out", default="out/calibrate", help="output directory: sensor.toml (the overlay), calibration_fit.json")
     p.add_argument("--cache", help="cache directory (the scene's own calibration frame is rendered through it)")
     p.add_argument("--quiet", action="store_true", help="no log lines")

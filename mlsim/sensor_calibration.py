@@ -1,15 +1,17 @@
 """``mlsim calibrate``: a scene overlay for a real sensor from its recordings (issue 41: the calibration
-photo and the idle video; the press of known force is not yet done).
+photo, an idle video, a press of known force).
 
-``mlsim calibrate --photo PHOTO --scene SCENE [--idle VIDEO] --out DIR`` finds the rods' disks on the
-calibration photo (SPEC 1.6's Hough calibration, :func:`dllm.calibration.calibrate`), fits the
-camera's view to the rods' known layout (:mod:`mlsim.sensor_view`), with ``--idle`` fits the camera's
-dark parameters to the idle recording (:mod:`mlsim.photon_transfer`), and writes
+``mlsim calibrate --photo PHOTO --scene SCENE [--idle VIDEO] [--press VIDEO --force-n F] --out DIR``
+finds the rods' disks on the calibration photo (SPEC 1.6's Hough calibration,
+:func:`dllm.calibration.calibrate`), fits the camera's view to the rods' known layout
+(:mod:`mlsim.sensor_view`), with ``--idle`` the camera's dark parameters to the idle recording
+(:mod:`mlsim.photon_transfer`), with ``--press`` the ML brightness to the recorded press, simulated
+through the fitted camera (:mod:`mlsim.press_brightness`), and writes
 
 - ``DIR/sensor.toml``: a scene overlay, ``scene = "<SCENE>"`` plus the fields the recordings
   determine (the image size; the focal length that reproduces the fitted scale at the scene's
   camera distance; with ``--idle``, the black level and read noise where the 8-bit frames show the
-  noise), each with its uncertainty in a comment, and the list of what they cannot determine (left
+  noise; with ``--press``, ``emission.brightness_photons_per_m2``), each with its uncertainty in a comment, and the list of what they cannot determine (left
   at the scene's values). ``mlsim run DIR/sensor.toml`` runs it;
 - ``DIR/calibration_fit.json``: every fitted value, its uncertainty and the residuals per rod;
 - ``DIR/calibration_overlay.png``: the circles Hough found on the photo.
@@ -25,7 +27,7 @@ Not determined, and left at the scene's values: the camera distance (one photo f
 magnification, i.e. focal length and distance together), the camera's roll and lateral offset
 (measured and reported, but the scene's camera sits on the array's axis), the conversion gain and
 dark current (an idle video at one exposure fixes two numbers: taken from the scene, the black level
-and read noise follow), the ML brightness (a press of known force: not yet).
+and read noise follow), the emission model's shape (only the brightness scale is fitted).
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ NOT_DETERMINED = {
     "camera roll, lateral offset": "measured (calibration_fit.json) but the scene's camera sits on the array's axis: no field for them",
     "camera.conversion_gain_dn_per_e, dark_current_e_per_s": "an idle video at one exposure fixes two numbers (offset, noise): "
                                                               "these are taken from the scene, the black level and read noise fitted",
-    "emission.brightness_photons_per_m2": "needs a press of known force: not yet",
+    "emission.brightness_photons_per_m2": "needs a press of known force (--press VIDEO --force-n F)",
 }
 
 
@@ -64,11 +66,12 @@ def hough_params(scene):
     return replace(p, accumulator=min(p.accumulator, 0.25 * 2.0 * np.pi * expected[1]))
 
 
-def calibrate_sensor(photo, scene_path, out_dir, *, idle=None, cache=None, log=print) -> dict:
+def calibrate_sensor(photo, scene_path, out_dir, *, idle=None, press=None, force_n=None, cache=None, log=print) -> dict:
     """Fit what the calibration photo determines and write the overlay (module docstring); returns
     the fit as a dict (what ``calibration_fit.json`` holds). ``idle``: an idle recording (video or
-    folder of frames) at the scene's camera settings. ``cache``: the pipeline's (the scene's own
-    calibration frame is rendered through it)."""
+    folder of frames) at the scene's camera settings. ``press``, ``force_n``: a recorded press (its
+    first second idle) of the scene's [load] at this force (N) (:mod:`mlsim.press_brightness`).
+    ``cache``: the pipeline's (the scene's own calibration frame and the press are simulated through it)."""
     from dllm.calibration import CalibrationError, calibrate
     from mlsim import pipeline
     from mlsim.detect import RecordingError, read_image
@@ -109,7 +112,14 @@ def calibrate_sensor(photo, scene_path, out_dir, *, idle=None, cache=None, log=p
     f = fit.focal_length_mm / ratio
     f_sigma = f * float(np.hypot(fit.focal_length_sigma_mm / fit.focal_length_mm, own.focal_length_sigma_mm / own.focal_length_mm))
     dark = _dark(idle, view, rgb.shape[:2]) if idle is not None else None
-    result = {"photo": str(photo), "idle": None if idle is None else str(idle), "dark": dark, "scene": str(scene_path), "disks": cal.n_taxels, "fit": fit.as_dict(),
+    fitted = {"camera.focal_length_mm": f} | ({"camera.black_level_dn": dark["black_level_dn"], "camera.read_noise_e": dark["read_noise_e"]}
+                                              if dark and dark["determinable"] else {})
+    if (press is None) != (force_n is None):
+        raise RecordingError("--force-n" if press is not None else "--press", force_n if press is not None else None,
+                             "give the press recording and its force together: --press VIDEO --force-n F")
+    brightness = _brightness(press, force_n, view.with_values(fitted), rgb.shape[:2], cache) if press is not None else None
+    result = {"photo": str(photo), "idle": None if idle is None else str(idle), "dark": dark, "brightness": brightness,
+              "scene": str(scene_path), "disks": cal.n_taxels, "fit": fit.as_dict(),
               "paraxial_scale_ratio": ratio, "scene_focal_length_mm": f_scene, "focal_length_mm": f, "focal_length_sigma_mm": f_sigma,
               "not_determined": NOT_DETERMINED}
     atomic_bytes(out / "calibration_fit.json", (json.dumps(result, indent=2) + "\n").encode())
@@ -130,8 +140,15 @@ def calibrate_sensor(photo, scene_path, out_dir, *, idle=None, cache=None, log=p
         f"height_px = {size['camera.height_px']}",
         f"focal_length_mm = {f:.6f}  # +- {f_sigma:.2g} mm (1 sigma) at distance_mm = {scene.camera.distance_mm:g}",
         *_dark_lines(dark),
+        *([] if brightness is None else [
+            "",
+            "[emission]",
+            f"brightness_photons_per_m2 = {brightness['brightness_photons_per_m2']:.6g}  # +- {brightness['sigma']:.2g} (the press of "
+            f"{brightness['force_n']:g} N, {len(brightness['iterations'])} simulations; the scene's [load] taken as that press)"]),
         "",
     ]
+    if brightness is not None:
+        lines.remove("#   emission.brightness_photons_per_m2: needs a press of known force (--press VIDEO --force-n F)")
     if dark is None:
         lines.insert(lines.index(f'scene = "{base}"'), "#   camera.black_level_dn, read_noise_e: need an idle video (--idle)")
     overlay = atomic_bytes(out / "sensor.toml", "\n".join(lines).encode())
@@ -169,3 +186,21 @@ def _dark_lines(dark) -> list[str]:
                 f"(black level within [{lo:g}, {hi:g}) DN)"]
     return [f"black_level_dn = {dark['black_level_dn']:.3f}  # +- {dark['black_level_sigma']:.2g} DN (idle video, {dark['frames']} frames)",
             f"read_noise_e = {dark['read_noise_e']:.4f}  # +- {dark['read_noise_sigma']:.2g} e- ({dark['why']})"]
+
+
+def _brightness(press, force_n, scene, shape_hw, cache) -> dict:
+    """The ML brightness fitted to a press recording (:func:`mlsim.press_brightness.fit_brightness`)."""
+    from mlsim import pipeline
+    from mlsim.detect import RecordingError, open_recording
+    from mlsim.press_brightness import fit_brightness
+
+    if not (np.isfinite(force_n) and force_n > 0):
+        raise RecordingError("--force-n", force_n, "must be a force > 0 (N)")
+    rec = open_recording(press, "--press")
+    if rec.shape_hw != tuple(shape_hw):
+        raise RecordingError("--press", str(press), f"its frames are {rec.shape_hw[1]} x {rec.shape_hw[0]} px, the photo "
+                                                    f"{shape_hw[1]} x {shape_hw[0]}: record both with the same camera and crop")
+    try:
+        return fit_brightness(np.stack(list(rec.frames())), scene, float(force_n), cache if cache is not None else pipeline.Cache())
+    except ValueError as exc:
+        raise RecordingError("--press", str(press), str(exc)) from None

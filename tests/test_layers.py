@@ -21,7 +21,7 @@ PACKAGES = ("mlsim", "fem", "dllm", "classifiers", "other_sensors")
 BASE = ("mlsim", "mlsim.errors", "mlsim.io", "mlsim.stage", "mlsim.scene", "mlsim.materials", "mlsim.spectra", "mlsim.plots",
         "fem.materials", "fem.materials.linear_elastic", "fem.materials.neo_hookean", "fem.materials.shore_hardness")
 ORCHESTRATION = ("mlsim.pipeline", "mlsim.cli", "mlsim.__main__", "mlsim.dataset", "mlsim.sweep", "mlsim.accuracy",
-                 "mlsim.detect", "mlsim.sensor_calibration", "mlsim.render.accuracy", "dllm.direction",
+                 "mlsim.detect", "mlsim.sensor_calibration", "mlsim.press_brightness", "mlsim.render.accuracy", "dllm.direction",
                  "dllm.ambient_study", "classifiers.cli")
 
 
