@@ -55,6 +55,7 @@ from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 import skfem
 from skfem import BilinearForm
 from skfem.helpers import det, dot
@@ -270,8 +271,6 @@ def integrate(
         free_u = np.setdiff1d(np.arange(d.n_u), fixed)
         m_ff = M[free_u][:, free_u].tocsc()
         a0 = np.zeros(n)
-        import scipy.sparse.linalg as spla
-
         a0[free_u] = spla.spsolve(m_ff, external(times[0])[free_u])
         state.a = a0
     min_step = min_step_s if min_step_s is not None else 1e-4 * float(np.min(np.diff(times)))

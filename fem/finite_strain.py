@@ -543,13 +543,13 @@ def rod_first_mode_rad_s(scene) -> float:
     (:func:`fem.rod_kinematics.euler_load_n`) and its layers' mass per length."""
     from fem import dynamics
     from fem.geometry import RodArray
-    from fem.rod_kinematics import euler_load_n
+    from fem.rod_kinematics import layered_bending_stiffness_n_m2
 
     g = RodArray.from_sensor(scene.sensor)
     regions = ("absorber", "ml_layer", "core")
     young = [scene.material(r).young_modulus_pa.value for r in regions]
     rho = np.array([float(scene.material(r).density_kg_m3.value or 0.0) for r in regions])
-    bending = euler_load_n(g.rod_radius_m, g.rod_height_m, young, [g.absorber_m, g.ml_m]) * 4.0 * g.rod_height_m**2 / np.pi**2
+    bending = layered_bending_stiffness_n_m2(g.rod_radius_m, young, [g.absorber_m, g.ml_m])
     outer = g.rod_radius_m - np.array([0.0, g.absorber_m, g.absorber_m + g.ml_m])
     inner = np.append(outer[1:], 0.0).clip(min=0.0)
     per_length = float(np.sum(rho * np.pi * (outer.clip(min=0.0) ** 2 - inner**2)))
@@ -596,6 +596,7 @@ class _Inertia:
         self.M, self.C, self.f_gravity, self.omega_1 = M, C, f_gravity, omega_1
         self.halvings = 0
         self._added: dict = {}
+        self._known = (None, None)  # (state, R_int(state)): the episode loop's last assembly, reused by set()
 
     @classmethod
     def from_scene(cls, scene, body, settings, steps) -> "_Inertia":
@@ -618,9 +619,15 @@ class _Inertia:
             self._added[key] = (self.M / dt**2 + self.C / dt).tocsr()
         free = problem.free
         f = self.f_gravity + self.M @ (x + dt * v) / dt**2 + self.C @ x / dt
-        r_int, _ = residual_and_tangent(problem.d, x, problem.body.lam, problem.body.mu, with_tangent=False)
+        state, r_int = self._known
+        if state is not x:  # a half step's start: not assembled yet
+            r_int, _ = residual_and_tangent(problem.d, x, problem.body.lam, problem.body.mu, with_tangent=False)
         scale = max(float(np.linalg.norm(self.f_gravity[free])), float(np.linalg.norm(r_int[free])))
         problem.set_inertia(self._added[key], f, scale, key)
+
+    def remember(self, x: np.ndarray, r_int: np.ndarray) -> None:
+        """R_int(x), assembled by the caller (the clamp's reaction), for the next step from x."""
+        self._known = (x, r_int)
 
     def advance(self, problem: "_Problem", x, v, pstate, pose_old: Pose, pose: Pose, dt: float, case: str, depth: int = 8):
         """The state (x, v, law) a step of size dt later, the indenter moving from pose_old to pose."""
@@ -752,6 +759,8 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
         # inertia of the consistent mass's clamp rows, which is left out)
         unbalanced = (r_int - body.f_gravity - points.W @ law.f.ravel())[body.fixed]
         reaction[s] = [unbalanced[comp_fixed == c].sum() for c in range(3)]
+        if inertia is not None:
+            inertia.remember(x, r_int)
         bar(s + 1)
     timings["contact_steps"] = time.perf_counter() - t_loop
     timings["tangent_factorisations"] = problem.factorisations + problem.linearisations

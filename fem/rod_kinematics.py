@@ -202,15 +202,22 @@ def euler_load_n(radius_m: float, height_m: float, young_pa, thickness_m) -> flo
     true beam-column amplification of a sideways deflection is 1 / (1 - 0.5) = 2.0 and the model's
     1 / (1 - 0.5 pi^2 / 12) = 1.70 (15 % short), beyond it the gap grows without bound
     (Timoshenko and Gere, Theory of Elastic Stability, 2nd ed., sections 1.3 and 2.1)."""
+    if height_m <= 0:
+        raise ValueError(f"euler_load_n: height {height_m} m: must be > 0")
+    return np.pi ** 2 * layered_bending_stiffness_n_m2(radius_m, young_pa, thickness_m) / (4.0 * height_m ** 2)
+
+
+def layered_bending_stiffness_n_m2(radius_m: float, young_pa, thickness_m) -> float:
+    """EI (N m^2) of a round rod's layered section: ``young_pa`` (k,) Pa of the layers outside in, the last
+    the core, ``thickness_m`` (k - 1,) of all but the core (the layers coat the rods' sides)."""
     E = np.asarray(young_pa, dtype=float)
     t = np.asarray(thickness_m, dtype=float)
-    if len(t) != len(E) - 1 or np.any(t < 0) or np.any(E <= 0) or radius_m <= 0 or height_m <= 0:
-        raise ValueError(f"euler_load_n: radius {radius_m} m, height {height_m} m, moduli {E} Pa and thicknesses {t} m: "
+    if len(t) != len(E) - 1 or np.any(t < 0) or np.any(E <= 0) or radius_m <= 0:
+        raise ValueError(f"euler_load_n: radius {radius_m} m, moduli {E} Pa and thicknesses {t} m: "
                          "need positive sizes and moduli and one thickness per layer outside the core")
     outer = radius_m - np.concatenate([[0.0], np.cumsum(t)])  # each layer's outer radius, outside in
     inner = np.append(outer[1:], 0.0).clip(min=0.0)
-    EI = float(np.sum(E * np.pi / 4.0 * (outer.clip(min=0.0) ** 4 - inner ** 4)))
-    return np.pi ** 2 * EI / (4.0 * height_m ** 2)
+    return float(np.sum(E * np.pi / 4.0 * (outer.clip(min=0.0) ** 4 - inner ** 4)))
 
 
 def pdelta_load(f: np.ndarray, tip_h: np.ndarray, point_rod: np.ndarray, length_m: float) -> np.ndarray:
