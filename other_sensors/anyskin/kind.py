@@ -5,7 +5,7 @@ from __future__ import annotations
 from mlsim.stage import register_kind
 
 from .schema import MAX_ANGULAR_RATE_DEG_S, AnySkinSensor
-from .stages import CONTACT, DRIFT, PITCH, SIGNALS
+from .stages import BENCH, CONTACT, DRIFT, PITCH, SIGNALS
 
 __all__ = ["AnySkinSensor", "KIND"]
 
@@ -33,11 +33,21 @@ def _check(scene) -> list:
     if (s.estimator.contact_model is None) != (s.estimator.force_model is None):
         problems.append(("sensor.estimator.force_model" if s.estimator.force_model is None else "sensor.estimator.contact_model", None,
                          "give both trained files (mlsim anyskin-train writes both) or neither (the stand-ins)"))
+    if s.skin.truth == "magnet_volume":
+        from .truth import worst_stretch
+
+        heaviest = s.push.peak_n * (1 + s.push.jitter)  # the whole push on one pad, the set at its ceiling
+        stretch = worst_stretch(s, heaviest)
+        if stretch <= 0:
+            problems.append(("sensor.drift.set_fraction", s.drift.set_fraction,
+                             f"a {heaviest:.0f} N push compresses the skin and its set through its whole thickness (stretch "
+                             f"{stretch:.3g} <= 0: the magnet volume inverts); lower it or sensor.push.peak_n, or raise "
+                             "sensor.skin.modulus_kpa or contact_radius_mm"))
     if tr.duration_s * s.magnetometers.rate_hz < 2:
         problems.append(("sensor.trajectory.duration_s", tr.duration_s, "give at least two samples"))
     return problems
 
 
-KIND = register_kind("anyskin", AnySkinSensor, [SIGNALS, CONTACT, DRIFT, PITCH], check=_check)
+KIND = register_kind("anyskin", AnySkinSensor, [SIGNALS, CONTACT, DRIFT, PITCH, BENCH], check=_check)
 """The Head-On helmet of SPEC 2: four AnySkin magnetic skins in an X on a quadruped's pitched helmet face,
 pushed against a force plate while walking; ``other_sensors.anyskin.kind`` registers the ``anyskin`` kind."""
