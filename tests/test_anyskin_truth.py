@@ -138,7 +138,7 @@ def test_chip_noise_has_its_rms_per_axis_within_chi_square_bounds():
     assert np.all((n - 1) * var / sigma**2 > lo) and np.all((n - 1) * var / sigma**2 < hi)
     assert np.all(np.abs(dev.mean(axis=0)) < 3.3 * sigma / np.sqrt(n))  # the mean: 99.9 % normal bound
     # per-chip errors: the offsets' spread and the matrices' off-diagonal spread are as set
-    offsets, sens = chip_errors(4000, 10.0, 0.02, 0.01, np.random.default_rng(3))
+    offsets, sens = chip_errors(4000, 10.0, 2.0, 1.0, np.random.default_rng(3))
     lo, hi = stats.chi2.ppf([5e-4, 1 - 5e-4], offsets.size)
     assert lo < (offsets**2).sum() / 10.0**2 < hi
     off = sens[:, ~np.eye(3, dtype=bool)]
@@ -148,7 +148,7 @@ def test_chip_noise_has_its_rms_per_axis_within_chi_square_bounds():
 
 def test_the_sensitivity_matrix_offset_and_quantisation_are_applied_per_chip():
     rng = np.random.default_rng(1)
-    offsets, sens = chip_errors(3, 10.0, 0.02, 0.01, rng)
+    offsets, sens = chip_errors(3, 10.0, 2.0, 1.0, rng)
     clean = rng.normal(0, 300.0, (50, 3, 3))
     r = read_chips(clean, offsets, sens, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), rng)
     for c in range(3):  # r = S_c b + o_c, chip by chip
@@ -171,9 +171,9 @@ def test_the_sensitivity_matrix_offset_and_quantisation_are_applied_per_chip():
 def test_bad_noise_is_refused_naming_the_field():
     with pytest.raises(ValueError, match=r"sensor\.noise\.rms_ut = .*must be finite and >= 0"):
         read_chips(np.zeros((2, 1, 3)), np.zeros((1, 3)), np.eye(3)[None], (1.0, np.nan, 1.0), 0.0, np.random.default_rng(0))
-    with pytest.raises(ValueError, match=r"sensor\.noise\.cross_axis"):
+    with pytest.raises(ValueError, match=r"sensor\.noise\.cross_axis_pct"):
         chip_errors(2, 1.0, 0.0, -0.1, np.random.default_rng(0))
-    for field, value in (("rms_z_ut", -1.0), ("offset_ut", float("inf")), ("gain_error", -0.1)):
+    for field, value in (("rms_z_ut", -1.0), ("offset_ut", float("inf")), ("gain_error_pct", -0.1)):
         with pytest.raises(ValueError, match=f"noise.{field}"):
             AnySkinSensor(noise={field: value})
 
@@ -218,3 +218,18 @@ def test_the_bench_presses_within_its_cone_and_reads_its_chips():
     loaded = np.argmax(-run.force[:, 2])
     assert np.abs(run.readings[loaded] - run.readings[0]).max() > 50.0  # uT: the press moves the field
     np.testing.assert_array_equal(simulate_bench(quiet, 5, duration_s=3.0).readings, run.readings)  # seeded
+
+
+def test_the_truth_comparison_trains_on_the_bench_and_scores_both_worlds(tmp_path):
+    from other_sensors.anyskin.stages import BENCH
+    from other_sensors.anyskin.study import truth_comparison
+
+    s = AnySkinSensor(trajectory={"duration_s": 3.0})
+    rows = truth_comparison(s, 3, bench_runs=2, bench_s=3.0, steps=5)
+    assert [r.truth for r in rows] == ["magnet_volume", "point_dipole"]
+    for r in rows:  # a few steps of training: errors of the order of the forces, finite, per axis
+        assert r.bench_mae.shape == r.mae_rebaselined.shape == r.mae_static.shape == (3,)
+        assert np.all(np.isfinite(np.concatenate([r.bench_mae, r.mae_rebaselined, r.mae_static])))
+        assert np.all(r.mae_static > 0) and r.mae_static.max() < 150.0
+    md = BENCH.write(rows, tmp_path, None)[1].read_text()
+    assert "| magnet_volume |" in md and "| point_dipole |" in md and "bench_mae_z_n" in md

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BenchRun", "bench_forces", "simulate_bench", "bench_training_data", "train_bench_force_map", "TANGENT_RATIO",
+__all__ = ["BenchRun", "bench_forces", "simulate_bench", "bench_training_data", "train_bench_force_map", "bench_force_map", "TANGENT_RATIO",
            "PEAK_MIN_N", "BENCH_RUNS", "BENCH_S"]
 
 TANGENT_RATIO = float(np.tan(np.radians(38.7)))  # see the module docstring
@@ -112,3 +112,17 @@ def train_bench_force_map(sensor, seed: int, runs: int = BENCH_RUNS, duration_s:
         return train_force_lstm(data, seed, steps=steps)
     finally:
         torch.set_num_threads(previous)
+
+
+_TRAINED: dict = {}  # (what the bench reads of the scene, seed) -> model: the stages of one run share a training
+
+
+def bench_force_map(sensor, seed: int):
+    """(model, metrics) of :func:`train_bench_force_map` with its defaults, trained once per process
+    for what the bench reads of the scene (the skin, the chips, the pushes, the Earth's field, the
+    estimator's filters) and the seed: the contact, drift and bench stages of a run share it."""
+    key = (seed,) + tuple(getattr(sensor, k).model_dump_json() for k in ("skin", "magnetometers", "noise", "push", "ambient",
+                                                                          "estimator"))
+    if key not in _TRAINED:
+        _TRAINED[key] = train_bench_force_map(sensor, seed)
+    return _TRAINED[key]

@@ -24,11 +24,11 @@ def _check(scene) -> list:
     if s.magnetometers.pitch_mm >= s.skin.side_mm / 2:
         problems.append(("sensor.magnetometers.pitch_mm", s.magnetometers.pitch_mm,
                          f"the outer chips must lie under the skin: make it < sensor.skin.side_mm / 2 = {s.skin.side_mm / 2:g}"))
-    from .estimate import model_path
+    from .estimate import BENCH_FORCE_MODEL, model_path
 
     for name in ("contact_model", "force_model"):
         path = getattr(s.estimator, name)
-        if path is not None and not model_path(path).is_file():
+        if path is not None and not (name == "force_model" and path == BENCH_FORCE_MODEL) and not model_path(path).is_file():
             problems.append((f"sensor.estimator.{name}", path, "no such file; train both with 'mlsim anyskin-train SCENE --out DIR'"))
     if (s.estimator.contact_model is None) != (s.estimator.force_model is None):
         problems.append(("sensor.estimator.force_model" if s.estimator.force_model is None else "sensor.estimator.contact_model", None,

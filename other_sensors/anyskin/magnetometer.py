@@ -7,7 +7,7 @@ A chip c reads the flux density b (uT, its own axes) as
 
 then rounded to its LSB per axis (lsb_xy, lsb_z). S_c = I + diag(g_c) + X_c: g_c the chip's gain errors
 and X_c (zero diagonal) its cross-axis sensitivity, drawn once per chip with standard deviations
-``gain_error`` and ``cross_axis``; o_c its offset, drawn once with standard deviation ``offset_ut``.
+``gain_error_pct`` and ``cross_axis_pct``; o_c its offset, drawn once with standard deviation ``offset_ut``.
 The chips of the helmet and of the calibration bench are different draws, so a force map calibrated
 on one skin meets other chips on the helmet, as on the real robot.
 
@@ -34,12 +34,13 @@ def _check(name: str, value) -> np.ndarray:
     return v
 
 
-def chip_errors(n_chips: int, offset_ut: float, gain_error: float, cross_axis: float, rng: np.random.Generator):
-    """Each chip's offset (C, 3) uT and sensitivity matrix (C, 3, 3), drawn once from rng; see the module docstring."""
-    _check("offset_ut", offset_ut), _check("gain_error", gain_error), _check("cross_axis", cross_axis)
+def chip_errors(n_chips: int, offset_ut: float, gain_error_pct: float, cross_axis_pct: float, rng: np.random.Generator):
+    """Each chip's offset (C, 3) uT and sensitivity matrix (C, 3, 3), drawn once from rng; see the module docstring.
+    gain_error_pct, cross_axis_pct: the standard deviations of g_c and X_c, in % (of 1)."""
+    _check("offset_ut", offset_ut), _check("gain_error_pct", gain_error_pct), _check("cross_axis_pct", cross_axis_pct)
     offsets = rng.normal(0.0, 1.0, (n_chips, 3)) * offset_ut
-    gains = rng.normal(0.0, 1.0, (n_chips, 3)) * gain_error
-    cross = rng.normal(0.0, 1.0, (n_chips, 3, 3)) * cross_axis
+    gains = rng.normal(0.0, 1.0, (n_chips, 3)) * gain_error_pct / 100.0
+    cross = rng.normal(0.0, 1.0, (n_chips, 3, 3)) * cross_axis_pct / 100.0
     cross[:, np.arange(3), np.arange(3)] = 0.0
     return offsets, np.eye(3)[None] + gains[:, :, None] * np.eye(3)[None] + cross
 

@@ -35,7 +35,7 @@ MAGNETOMETER_PITCH_MM = 9.0
 # cross-axis terms 1 % rms (choices: typical Hall-sensor magnitudes, not fitted to any published error).
 NOISE_UT, LSB_UT, LSB_Z_UT = 1.5, 0.150, 0.242
 NOISE_Z_UT = NOISE_UT * LSB_Z_UT / LSB_UT
-OFFSET_UT, GAIN_ERROR, CROSS_AXIS = 10.0, 0.02, 0.01
+OFFSET_UT, GAIN_ERROR_PCT, CROSS_AXIS_PCT = 10.0, 2.0, 1.0
 # Earth's field in the world frame (x north, z up): 48 uT at 66 deg inclination (central Europe).
 GEOMAGNETIC_UT = (19.5, 0.0, -43.9)
 # Motor stray field at the skins: 5 uT peak, a choice (motors ~20 cm away behind the neck).
@@ -131,15 +131,15 @@ class DriftSpec(_Model):
 class NoiseSpec(_Model):
     """The chips' read-out (:mod:`other_sensors.anyskin.magnetometer`): white noise rms on x, y (``rms_ut``)
     and z (``rms_z_ut``), uT; quantisation steps (0: none), uT per LSB; each chip's offset (rms, uT), gain
-    error and cross-axis sensitivity (rms, fractions), drawn once per chip from the seed."""
+    error and cross-axis sensitivity (rms, %), drawn once per chip from the seed."""
 
     rms_ut: float = Field(NOISE_UT, ge=0.0, le=1e4)
     rms_z_ut: float = Field(NOISE_Z_UT, ge=0.0, le=1e4)
     lsb_ut: float = Field(LSB_UT, ge=0.0, le=1e3)
     lsb_z_ut: float = Field(LSB_Z_UT, ge=0.0, le=1e3)
     offset_ut: float = Field(OFFSET_UT, ge=0.0, le=1e5)
-    gain_error: float = Field(GAIN_ERROR, ge=0.0, le=0.5)
-    cross_axis: float = Field(CROSS_AXIS, ge=0.0, le=0.5)
+    gain_error_pct: float = Field(GAIN_ERROR_PCT, ge=0.0, le=50.0)
+    cross_axis_pct: float = Field(CROSS_AXIS_PCT, ge=0.0, le=50.0)
 
 
 class EstimatorSpec(_Model):
@@ -156,7 +156,8 @@ class EstimatorSpec(_Model):
     release_slope_ut_s: float = Field(60.0, gt=0.0)
     calibration_s: float = Field(1.0, gt=0.0, le=60.0)  # the initial baseline: the mean of the first samples
     contact_model: str | None = None  # the causal CNN's file (mlsim anyskin-train: anyskin_contact_cnn.pt)
-    force_model: str | None = None  # the LSTM-MLP's file (mlsim anyskin-train: anyskin_force_lstm.pt)
+    force_model: str | None = None  # the LSTM-MLP's file (mlsim anyskin-train: anyskin_force_lstm.pt), or "bench": trained
+    # on the simulated calibration bench at run time (other_sensors/anyskin/bench.py, seeded by the scene's seed)
 
 
 class AnySkinSensor(_Model):

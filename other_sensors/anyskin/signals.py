@@ -91,7 +91,7 @@ def simulate_helmet(sensor, seed: int) -> HelmetSignals:
 def chip_errors_of(sensor, n_chips: int, rng: np.random.Generator):
     """The scene's chips' offsets (C, 3) uT and sensitivity matrices (C, 3, 3), drawn from rng."""
     n = sensor.noise
-    return chip_errors(n_chips, n.offset_ut, n.gain_error, n.cross_axis, rng)
+    return chip_errors(n_chips, n.offset_ut, n.gain_error_pct, n.cross_axis_pct, rng)
 
 
 def read_chips_of(sensor, clean_ut, offsets, sensitivity, rng: np.random.Generator) -> np.ndarray:

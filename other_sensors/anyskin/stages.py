@@ -301,8 +301,10 @@ def _write_bench(rows, out_dir: Path, ctx) -> list[Path]:
     md = ("# Force MAE per axis with the LSTM-MLP trained on the simulated calibration bench (issue 43)\n\n"
           "Per truth model (the world that generates the chips' field): bench_*: the held-out bench run (one skin pressed on a "
           "force plate); the rest: the helmet's pushes over all scored samples and the four sensors (sensor frames, z the "
-          "normal), with and without re-baselining. The estimator is the same in every row; magnet_volume's error holds the "
-          "model error (the network never saw the point-dipole world), point_dipole's is the estimator's first world.\n\n" + md)
+          "normal), with and without re-baselining. Each row's network is trained on the bench in that row's world and "
+          "scored on the helmet in the same world, with the same contact detector: the helmet's error holds what the bench "
+          "does not show (other chips' offsets, gains and cross-axis terms, the head's motion and fields, the skin's set), "
+          "not only the noise added.\n\n" + md)
     return [atomic_bytes(out_dir / "anyskin_bench.csv", csv.encode()), atomic_bytes(out_dir / "anyskin_bench.md", md.encode())]
 
 

@@ -128,15 +128,18 @@ class TruthRow:
     rebaselines: int
 
 
-def truth_comparison(sensor, seed: int, truths=TRUTHS, log=lambda m: None) -> list[TruthRow]:
+def truth_comparison(sensor, seed: int, truths=TRUTHS, log=lambda m: None, bench_runs: int | None = None,
+                     bench_s: float | None = None, steps: int | None = None) -> list[TruthRow]:
     """Issue 43's acceptance table: per truth model, the LSTM-MLP trained on the simulated calibration
     bench (:mod:`.bench`) and scored on the scene's helmet pushes, with and without re-baselining.
 
     The contact detector is the scene's (the causal CNN when ``sensor.estimator.contact_model`` names
-    it, else the threshold stand-in); only the force map changes between the rows."""
+    it, else the threshold stand-in); only the force map changes between the rows. bench_runs, bench_s,
+    steps: the bench's runs and their length (None: :data:`.bench.BENCH_RUNS`, :data:`.bench.BENCH_S`)
+    and the LSTM-MLP's training steps (None: 400)."""
     from classifiers.anyskin_force_lstm import predict_forces
 
-    from .bench import train_bench_force_map
+    from .bench import bench_force_map, train_bench_force_map
     from .contact_state import ThresholdStandIn
     from .estimate import Estimator, cnn_detector, estimate_contacts, model_path
     from .signals import simulate_helmet
@@ -151,7 +154,12 @@ def truth_comparison(sensor, seed: int, truths=TRUTHS, log=lambda m: None) -> li
     rows = []
     for truth in truths:
         s = sensor.model_copy(update={"skin": sensor.skin.model_copy(update={"truth": truth})})
-        lstm, metrics = train_bench_force_map(s, seed)
+        if bench_runs is None and bench_s is None and steps is None:  # the defaults: shared with the contact and drift stages
+            lstm, metrics = bench_force_map(s, seed)
+        else:
+            from .bench import BENCH_RUNS, BENCH_S
+
+            lstm, metrics = train_bench_force_map(s, seed, bench_runs or BENCH_RUNS, bench_s or BENCH_S, steps or 400)
         est = Estimator(s.magnetometers.rate_hz, e.calibration_s, e.median_samples, e.lowpass_hz, e.window_samples, detector,
                         lambda x, m=lstm: predict_forces(m, x), f"{name} + bench-trained LSTM-MLP", torch=True)
         out = estimate_contacts(s, simulate_helmet(s, seed), seed, est)

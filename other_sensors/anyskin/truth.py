@@ -70,7 +70,11 @@ def worst_stretch(sensor, force_n: float) -> float:
 
     s = sensor.skin
     a = s.contact_radius_mm * 1e-3
-    lam = float(compressive_stretch(force_n / (2 * np.pi * a * a), s.modulus_kpa * 1e3 / 3.0))
+    with np.errstate(over="ignore", divide="ignore"):
+        pressure = np.float64(force_n) / (2 * np.pi * a * a)  # the patch's peak
+    if not np.isfinite(pressure):
+        return -np.inf  # a patch too small to carry the force: no stretch is left
+    lam = float(compressive_stretch(pressure, s.modulus_kpa * 1e3 / 3.0))
     f = sensor.drift.set_fraction if sensor.drift.enabled else 0.0
     return 1.0 - (1.0 + f) * (1.0 - lam)
 
