@@ -1,9 +1,10 @@
 """The flux density of a uniformly magnetised rectangular prism, in closed form (the skin at rest, SPEC 2).
 
 A prism [x1, x2] x [y1, y2] x [z1, z2] with uniform magnetisation M (A/m) is, outside it, the field
-of the surface charges sigma = M . n on its faces (Furlani, *Permanent Magnet and Electromechanical
-Devices*, Academic Press, 2001, sec. 4.3; Engel-Herbert & Hesjedal, "Calculation of the magnetic
-stray field of a uniaxial magnetic domain", J. Appl. Phys. 97, 074504, 2005, eqs. 5-7). A face at
+of the surface charges sigma = M . n on its faces (the charge model: Furlani, *Permanent Magnet and
+Electromechanical Devices*, Academic Press, 2001, ch. 4; the prism's closed form: Engel-Herbert &
+Hesjedal, "Calculation of the magnetic stray field of a uniaxial magnetic domain", J. Appl. Phys. 97,
+074504, 2005). A face at
 z = zf carrying sigma gives, with X_i = x - x_i, Y_j = y - y_j, Z = z - zf, R_ij = |(X_i, Y_j, Z)|
 and s_1 = +1, s_2 = -1 (the integration limits),
 

@@ -89,7 +89,8 @@ SIGNALS = Stage(
     name="anyskin_signals", doc="150 Hz magnetometer traces of the four helmet skins and each sensor's ground-truth plate force",
     reads=("sensor.skin", "sensor.magnetometers", "sensor.helmet", "sensor.trajectory", "sensor.push", "sensor.ambient",
            "sensor.drift", "sensor.noise", "seed"),
-    needs=(), run=_signals, save=pickle_save, load=pickle_load, write=_write_signals, summarize=_summarize_signals)
+    needs=(), run=_signals, save=pickle_save, load=pickle_load, write=_write_signals, summarize=_summarize_signals,
+    version="2")  # 2: issue 43's truth models and chip read-out
 
 
 def _contact(scene, inputs, ctx):
@@ -278,7 +279,8 @@ PITCH = Stage(
     name="anyskin_pitch", doc="SPEC 2's face-pitch criteria B and SNR_xy over 0-30 deg, from the simulated ground truth",
     reads=("sensor.skin", "sensor.magnetometers", "sensor.helmet", "sensor.trajectory", "sensor.push", "sensor.ambient",
            "sensor.drift", "sensor.noise", "seed"),
-    needs=(), run=_pitch, save=pickle_save, load=pickle_load, write=_write_pitch, summarize=_summarize_pitch)
+    needs=(), run=_pitch, save=pickle_save, load=pickle_load, write=_write_pitch, summarize=_summarize_pitch,
+    version="2")  # 2: issue 43's truth models and chip read-out
 
 
 def _bench(scene, inputs, ctx):
