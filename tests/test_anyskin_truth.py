@@ -200,6 +200,8 @@ def test_a_magnet_volume_that_would_invert_is_refused_naming_the_field(tmp_path)
         skin_fields(s, force, 1 / 150)
     with pytest.raises(SceneError, match=r"sensor\.skin\.truth"):
         load_scene(scene, overrides={"sensor.skin.truth": "voxels"})
+    with pytest.raises(SceneError, match=r"sensor\.estimator\.contact_model.*bench.* needs the causal CNN"):
+        load_scene(scene, overrides={"sensor.estimator.contact_model": None})
 
 
 # ------------------------------------------------------------------------------------ the bench

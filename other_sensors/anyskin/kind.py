@@ -32,7 +32,9 @@ def _check(scene) -> list:
             problems.append((f"sensor.estimator.{name}", path, "no such file; train both with 'mlsim anyskin-train SCENE --out DIR'"))
     if (s.estimator.contact_model is None) != (s.estimator.force_model is None):
         problems.append(("sensor.estimator.force_model" if s.estimator.force_model is None else "sensor.estimator.contact_model", None,
-                         "give both trained files (mlsim anyskin-train writes both) or neither (the stand-ins)"))
+                         "give both trained files (mlsim anyskin-train writes both) or neither (the stand-ins)"
+                         + ("; force_model = \"bench\" needs the causal CNN's file" if s.estimator.force_model == BENCH_FORCE_MODEL
+                            else "")))
     if s.skin.truth == "magnet_volume":
         from .truth import worst_stretch
 
