@@ -170,7 +170,8 @@ def test_head_rates_stay_under_180_deg_s_and_pushes_have_their_peaks():
 
 
 def _quiet(**changes) -> AnySkinSensor:
-    base = {"trajectory": {"duration_s": 3.0}, "drift": {"enabled": False}, "noise": {"rms_ut": 0.0, "lsb_ut": 0.0},
+    base = {"trajectory": {"duration_s": 3.0}, "drift": {"enabled": False},
+            "noise": {"rms_ut": 0.0, "rms_z_ut": 0.0, "lsb_ut": 0.0, "lsb_z_ut": 0.0, "offset_ut": 0.0, "gain_error_pct": 0.0, "cross_axis_pct": 0.0},
             "ambient": {"geomagnetic_ut": (0.0, 0.0, 0.0), "motor_ut": 0.0}}
     base.update(changes)
     return AnySkinSensor(**base)

@@ -5,7 +5,8 @@ slope windows, detector, contact state machine and re-baselining (:mod:`.contact
 force map per sensor. With trained weights (``sensor.estimator.contact_model`` and ``force_model``,
 files of ``mlsim anyskin-train``) the detector is the causal CNN
 (:mod:`classifiers.anyskin_contact_cnn`) and the force map the LSTM-MLP
-(:mod:`classifiers.anyskin_force_lstm`), as SPEC 2 has them. Without them two stand-ins, named as
+(:mod:`classifiers.anyskin_force_lstm`), as SPEC 2 has them; ``force_model = "bench"`` trains the
+LSTM-MLP on the simulated calibration bench instead (:mod:`.bench`, seeded by the scene's seed). Without them two stand-ins, named as
 such in every output: the slope-threshold detector (:class:`.contact_state.ThresholdStandIn`) and a
 quadratic ridge map (:mod:`.force_map`) fitted on a calibration run (the same scene with the skin's
 set switched off and the next seed, seed + 1).
@@ -29,10 +30,11 @@ from .helmet import N_SENSORS
 from .skin import N_MAGNETOMETERS
 from .stream import check_stream
 
-__all__ = ["Estimator", "EstimatorOutput", "ContactEstimate", "estimate_contacts", "make_estimator", "cnn_detector",
+__all__ = ["BENCH_FORCE_MODEL", "Estimator", "EstimatorOutput", "ContactEstimate", "estimate_contacts", "make_estimator", "cnn_detector",
            "model_path", "push_cycles", "N_CHANNELS"]
 
 N_CHANNELS = N_SENSORS * N_MAGNETOMETERS
+BENCH_FORCE_MODEL = "bench"  # sensor.estimator.force_model: train the LSTM-MLP on the simulated calibration bench
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -124,14 +126,20 @@ def make_estimator(sensor, seed: int = 0) -> Estimator:
         from classifiers.anyskin_contact_cnn import load_contact_cnn
         from classifiers.anyskin_force_lstm import load_force_lstm, predict_forces
 
-        cnn, lstm = load_contact_cnn(model_path(e.contact_model)), load_force_lstm(model_path(e.force_model))
+        cnn = load_contact_cnn(model_path(e.contact_model))
+        if e.force_model == BENCH_FORCE_MODEL:  # SPEC 2's calibration rig, simulated: trained here (issue 43)
+            from .bench import bench_force_map
+
+            lstm, what = bench_force_map(sensor, seed)[0], "bench-trained LSTM-MLP"
+        else:
+            lstm, what = load_force_lstm(model_path(e.force_model)), "LSTM-MLP"
         if cnn.window != e.window_samples:
             from mlsim.errors import SceneError
 
             raise SceneError([("sensor.estimator.window_samples", e.window_samples,
                                f"the CNN in {e.contact_model} takes windows of {cnn.window}; set it to {cnn.window} or retrain")])
-        return Estimator(*settings, cnn_detector(cnn), lambda s: predict_forces(lstm, s), "causal CNN + LSTM-MLP",
-                         {"contact": cnn.meta, "force": lstm.meta}, torch=True)
+        return Estimator(*settings, cnn_detector(cnn), lambda s: predict_forces(lstm, s), f"causal CNN + {what}",
+                         {"contact": cnn.meta, "force": getattr(lstm, "meta", {})}, torch=True)
     from .force_map import fit_force_map, predict_force
     from .signals import simulate_helmet
 

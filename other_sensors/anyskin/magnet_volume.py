@@ -81,27 +81,28 @@ def slab_body(side_x_m: float, side_y_m: float, thickness_m: float, base_z_m: fl
 
 
 def element_moments(body: MagnetBody, deformed_nodes=None):
-    """Each Gauss point's deformed position (E * 8, 3) m and moment F M~ dV0 (E * 8, 3) A m^2.
+    """Each Gauss point's deformed position (..., E * 8, 3) m and moment F M~ dV0 (..., E * 8, 3) A m^2.
 
-    deformed_nodes: (V, 3) m, None for the undeformed body. Raises ValueError where an element
-    inverts (det F <= 0 at a Gauss point)."""
+    deformed_nodes: (..., V, 3) m (leading axes: a batch of deformations, e.g. time samples), None for
+    the undeformed body. Raises ValueError where an element inverts (det F <= 0 at a Gauss point)."""
     x = body.nodes if deformed_nodes is None else np.asarray(deformed_nodes, dtype=float)
-    if x.shape != body.nodes.shape or not np.isfinite(x).all():
-        raise ValueError(f"magnet body: deformed nodes must be finite and shaped {body.nodes.shape}; got {x.shape}")
+    if x.shape[-2:] != body.nodes.shape or not np.isfinite(x).all():
+        raise ValueError(f"magnet body: deformed nodes must be finite and shaped (..., {len(body.nodes)}, 3); got {x.shape}")
     n, dn = _shape(GAUSS)
-    ref, cur = body.nodes[body.elements], x[body.elements]  # (E, 8, 3)
+    ref, cur = body.nodes[body.elements], x[..., body.elements, :]  # (E, 8, 3), (..., E, 8, 3)
     j0 = np.einsum("eai,qaj->eqij", ref, dn)  # dX/dxi (E, Q, 3, 3)
-    j = np.einsum("eai,qaj->eqij", cur, dn)  # dx/dxi
+    j = np.einsum("...eai,qaj->...eqij", cur, dn)  # dx/dxi
     f = j @ np.linalg.inv(j0)  # dx/dX
     det_f = np.linalg.det(f)
     if np.any(det_f <= 0):
-        bad = int(np.argmax(np.any(det_f <= 0, axis=1)))
+        bad = int(np.argmax(np.any(det_f <= 0, axis=-1).reshape(-1, len(body.elements)).any(axis=0)))
         raise ValueError(f"sensor.skin: the magnet volume inverts (det F = {det_f.min():.3g} <= 0 in element {bad}); "
-                         "a smaller load or a softer saturation keeps the skin from folding")
+                         "a smaller load or a wider contact keeps the skin from folding")
     dv0 = np.linalg.det(j0)  # unit Gauss weights
-    moments = np.einsum("eqij,j->eqi", f, body.magnetisation) * dv0[..., None]
-    positions = np.einsum("qa,eai->eqi", n, cur)
-    return positions.reshape(-1, 3), moments.reshape(-1, 3)
+    moments = (f @ body.magnetisation) * dv0[..., None]
+    positions = np.einsum("qa,...eai->...eqi", n, cur)
+    lead = x.shape[:-2]
+    return positions.reshape(lead + (-1, 3)), moments.reshape(lead + (-1, 3))
 
 
 def body_field(body: MagnetBody, points, deformed_nodes=None) -> np.ndarray:

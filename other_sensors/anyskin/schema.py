@@ -29,8 +29,13 @@ SKIN_SIDE_MM, SKIN_THICKNESS_MM, SKIN_GAP_MM, SKIN_GRID, MAGNETISATION_KA_M = 28
 MODULUS_KPA, MAX_STRAIN, CONTACT_RADIUS_MM = 500.0, 0.6, 8.0
 # Magnetometer cross: 9 mm from the centre chip, inside the skin's 14 mm half-side.
 MAGNETOMETER_PITCH_MM = 9.0
-# Readout: 1.5 uT rms per axis (an MLX90393's noise at a 150 Hz rate), 0.15 uT per LSB (its xy gain).
-NOISE_UT, LSB_UT = 1.5, 0.15
+# Readout (other_sensors/anyskin/magnetometer.py): an MLX90393 at GAIN_SEL 7, RES 0: 0.150 uT per LSB on x, y
+# and 0.242 on z (its datasheet's sensitivities, rev. 006); 1.5 uT rms on x, y at the 150 Hz rate (a choice) and
+# z 1.5 x 0.242 / 0.150 = 2.42 uT (the same noise in LSB). Per chip: offsets 10 uT rms, gain errors 2 % rms and
+# cross-axis terms 1 % rms (choices: typical Hall-sensor magnitudes, not fitted to any published error).
+NOISE_UT, LSB_UT, LSB_Z_UT = 1.5, 0.150, 0.242
+NOISE_Z_UT = NOISE_UT * LSB_Z_UT / LSB_UT
+OFFSET_UT, GAIN_ERROR_PCT, CROSS_AXIS_PCT = 10.0, 2.0, 1.0
 # Earth's field in the world frame (x north, z up): 48 uT at 66 deg inclination (central Europe).
 GEOMAGNETIC_UT = (19.5, 0.0, -43.9)
 # Motor stray field at the skins: 5 uT peak, a choice (motors ~20 cm away behind the neck).
@@ -52,8 +57,14 @@ _Model = SpecModel  # unknown keys refused, frozen, NaN and Inf refused (the sce
 
 
 class SkinSpec(_Model):
-    """The magnetised elastomer (:mod:`other_sensors.anyskin.skin`)."""
+    """The magnetised elastomer. ``truth`` picks the model that generates the chips' field
+    (:mod:`other_sensors.anyskin.truth`): ``"magnet_volume"`` (default), the skin as a finite magnetised
+    volume (grid x grid columns, each moment following the deformation) over a thin incompressible
+    neo-Hookean layer (:mod:`other_sensors.anyskin.skin_volume`); ``"point_dipole"``, grid x grid point
+    dipoles over a saturating linear layer (:mod:`other_sensors.anyskin.skin`), the estimator's first
+    world, kept to compare. max_strain applies to ``"point_dipole"`` only."""
 
+    truth: Literal["magnet_volume", "point_dipole"] = "magnet_volume"
     side_mm: float = Field(SKIN_SIDE_MM, gt=0.0, le=200.0)
     thickness_mm: float = Field(SKIN_THICKNESS_MM, gt=0.0, le=20.0)
     gap_mm: float = Field(SKIN_GAP_MM, gt=0.0, le=20.0)
@@ -118,10 +129,17 @@ class DriftSpec(_Model):
 
 
 class NoiseSpec(_Model):
-    """White noise per axis and the quantisation step (0: none)."""
+    """The chips' read-out (:mod:`other_sensors.anyskin.magnetometer`): white noise rms on x, y (``rms_ut``)
+    and z (``rms_z_ut``), uT; quantisation steps (0: none), uT per LSB; each chip's offset (rms, uT), gain
+    error and cross-axis sensitivity (rms, %), drawn once per chip from the seed."""
 
     rms_ut: float = Field(NOISE_UT, ge=0.0, le=1e4)
+    rms_z_ut: float = Field(NOISE_Z_UT, ge=0.0, le=1e4)
     lsb_ut: float = Field(LSB_UT, ge=0.0, le=1e3)
+    lsb_z_ut: float = Field(LSB_Z_UT, ge=0.0, le=1e3)
+    offset_ut: float = Field(OFFSET_UT, ge=0.0, le=1e5)
+    gain_error_pct: float = Field(GAIN_ERROR_PCT, ge=0.0, le=50.0)
+    cross_axis_pct: float = Field(CROSS_AXIS_PCT, ge=0.0, le=50.0)
 
 
 class EstimatorSpec(_Model):
@@ -138,7 +156,8 @@ class EstimatorSpec(_Model):
     release_slope_ut_s: float = Field(60.0, gt=0.0)
     calibration_s: float = Field(1.0, gt=0.0, le=60.0)  # the initial baseline: the mean of the first samples
     contact_model: str | None = None  # the causal CNN's file (mlsim anyskin-train: anyskin_contact_cnn.pt)
-    force_model: str | None = None  # the LSTM-MLP's file (mlsim anyskin-train: anyskin_force_lstm.pt)
+    force_model: str | None = None  # the LSTM-MLP's file (mlsim anyskin-train: anyskin_force_lstm.pt), or "bench": trained
+    # on the simulated calibration bench at run time (other_sensors/anyskin/bench.py, seeded by the scene's seed)
 
 
 class AnySkinSensor(_Model):

@@ -10,6 +10,10 @@
   SNR_xy = |mean F_xy| / sqrt(trace(Sigma_xy)) of each sensor's planar force over its contact
   samples (normal force > 2 N), the mean of the planar force against its spread; NaN for a sensor
   with fewer than ``MIN_CONTACT_SAMPLES`` (15, 0.1 s) contact samples, whose ratio is noise.
+- :func:`truth_comparison` (issue 43): per truth model (the finite magnet volume, the point dipoles),
+  the LSTM-MLP trained on the simulated calibration bench and scored on the helmet's pushes, with and
+  without re-baselining: the estimator's error with the model error in it, beside the error in the
+  world it was first built on.
 """
 
 from __future__ import annotations
@@ -18,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DriftRow", "PitchRow", "drift_sweep", "pitch_criteria", "snr_xy", "count_above", "B_FORCE_N", "SWEEP_FACTORS",
-           "PITCHES_DEG"]
+__all__ = ["DriftRow", "PitchRow", "TruthRow", "drift_sweep", "pitch_criteria", "truth_comparison", "snr_xy", "count_above",
+           "B_FORCE_N", "SWEEP_FACTORS", "TRUTHS", "PITCHES_DEG"]
 
 B_FORCE_N = 50.0  # SPEC 2: contact forces above 50 N
 CONTACT_N = 2.0  # a sample is in contact above this normal force (the labels' threshold)
@@ -106,4 +110,61 @@ def pitch_criteria(sensor, seed: int, pitches=PITCHES_DEG) -> list[PitchRow]:
         s = sensor.model_copy(update={"helmet": sensor.helmet.model_copy(update={"face_pitch_deg": float(p)})})
         sig = simulate_helmet(s, seed)
         rows.append(PitchRow(float(p), count_above(sig.normal_n), snr_xy(sig.force_n, sig.normal_n)))
+    return rows
+
+
+TRUTHS = ("magnet_volume", "point_dipole")  # the richer world first, then the estimator's first one
+
+
+@dataclass(frozen=True)
+class TruthRow:
+    """One truth model: truth; bench_mae (3,) N, the bench-trained force map's MAE per axis on the held-out
+    bench run; mae_rebaselined, mae_static (3,) N per axis on the helmet's pushes; rebaselines (total)."""
+
+    truth: str
+    bench_mae: np.ndarray
+    mae_rebaselined: np.ndarray
+    mae_static: np.ndarray
+    rebaselines: int
+
+
+def truth_comparison(sensor, seed: int, truths=TRUTHS, log=lambda m: None, bench_runs: int | None = None,
+                     bench_s: float | None = None, steps: int | None = None) -> list[TruthRow]:
+    """Issue 43's acceptance table: per truth model, the LSTM-MLP trained on the simulated calibration
+    bench (:mod:`.bench`) and scored on the scene's helmet pushes, with and without re-baselining.
+
+    The contact detector is the scene's (the causal CNN when ``sensor.estimator.contact_model`` names
+    it, else the threshold stand-in); only the force map changes between the rows. bench_runs, bench_s,
+    steps: the bench's runs and their length (None: :data:`.bench.BENCH_RUNS`, :data:`.bench.BENCH_S`)
+    and the LSTM-MLP's training steps (None: 400)."""
+    from classifiers.anyskin_force_lstm import predict_forces
+
+    from .bench import bench_force_map, train_bench_force_map
+    from .contact_state import ThresholdStandIn
+    from .estimate import Estimator, cnn_detector, estimate_contacts, model_path
+    from .signals import simulate_helmet
+
+    e = sensor.estimator
+    if e.contact_model is not None:
+        from classifiers.anyskin_contact_cnn import load_contact_cnn
+
+        detector, name = cnn_detector(load_contact_cnn(model_path(e.contact_model))), "causal CNN"
+    else:
+        detector, name = ThresholdStandIn(e.onset_slope_ut_s, e.release_slope_ut_s), "threshold stand-in"
+    rows = []
+    for truth in truths:
+        s = sensor.model_copy(update={"skin": sensor.skin.model_copy(update={"truth": truth})})
+        if bench_runs is None and bench_s is None and steps is None:  # the defaults: shared with the contact and drift stages
+            lstm, metrics = bench_force_map(s, seed)
+        else:
+            from .bench import BENCH_RUNS, BENCH_S
+
+            lstm, metrics = train_bench_force_map(s, seed, bench_runs or BENCH_RUNS, bench_s or BENCH_S, steps or 400)
+        est = Estimator(s.magnetometers.rate_hz, e.calibration_s, e.median_samples, e.lowpass_hz, e.window_samples, detector,
+                        lambda x, m=lstm: predict_forces(m, x), f"{name} + bench-trained LSTM-MLP", torch=True)
+        out = estimate_contacts(s, simulate_helmet(s, seed), seed, est)
+        rows.append(TruthRow(truth, np.asarray(metrics["val_mae_xyz_n"]), np.array([out.mae("rebaselined", a) for a in range(3)]),
+                             np.array([out.mae("static", a) for a in range(3)]), int(out.rebaselines.sum())))
+        log(f"anyskin truth {truth}: bench MAE x y z {np.round(rows[-1].bench_mae, 2)} N; helmet MAE x y z "
+            f"{np.round(rows[-1].mae_rebaselined, 2)} N re-baselined, {np.round(rows[-1].mae_static, 2)} N static")
     return rows
