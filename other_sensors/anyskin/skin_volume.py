@@ -24,7 +24,7 @@ quadrature's own error at rest (24 % at the centre chip for 14 x 14 columns of 2
 cancels in the difference. Because each f_c depends on its own h_c only, it is tabulated once per run
 on a TABLE_NODES^3 grid over the run's range of h and interpolated trilinearly per sample (an
 evaluation per sample and Gauss point costs minutes per run; the table's error against the direct sum
-is checked in ``tests/test_anyskin_skin_volume.py``).
+is checked in ``tests/test_anyskin_truth.py``).
 """
 
 from __future__ import annotations
