@@ -38,10 +38,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 from scipy.special import ellipeinc, ellipkinc
 
-__all__ = ["cantilever_tip", "euler_load_clamped_free_n", "engesser_load_n"]
+__all__ = ["cantilever_tip", "cantilever_inclined_end", "euler_load_clamped_free_n", "engesser_load_n"]
 
 
 def _alpha_of_tip_angle(theta0: float) -> tuple[float, float, float]:
@@ -69,6 +70,48 @@ def cantilever_tip(alpha: float) -> tuple[float, float, float]:
     delta = 1.0 - 2.0 / root * (ellipeinc(0.5 * math.pi, k2) - ellipeinc(phi1, k2))
     along = math.sqrt(2.0 * math.sin(theta0) / alpha)
     return float(delta), float(along), float(theta0)
+
+
+def cantilever_inclined_end(alpha: float, phi_rad: float) -> tuple[float, float, float]:
+    """The end of a cantilever under a dead end load inclined by ``phi_rad`` from the perpendicular
+    to its axis towards its base (phi = 0: :func:`cantilever_tip`'s load; phi = pi / 2: an axial
+    compression), by shooting from the clamp.
+
+    With s over L, theta the rod's angle from its undeformed axis and P the load's magnitude,
+    E I theta' = (moment of P about the point s) gives theta'' = -alpha cos(theta - phi),
+    theta(0) = 0, theta'(1) = 0 [FrischFay1962]_; the end is at (x, z) = int (sin theta, cos theta) ds.
+    The initial curvature theta'(0) is found by bracketing in [0, 2 alpha] (the end moment vanishes
+    at one curvature there while cos(theta - phi) > 0 along the rod: the branch that starts from
+    the unloaded rod, below the inclined load's buckling). A frictionless contact on the rod's side
+    is this load with phi equal to the end angle (the contact force is normal to the rod).
+
+    alpha: P L^2 / (E I) >= 0. Returns (x / L across, z / L along the undeformed axis, theta_end rad).
+
+    References
+    ----------
+    .. [FrischFay1962] R. Frisch-Fay, "Flexible Bars", Butterworths (1962), ch. 2 (the cantilever
+       under an inclined end load).
+    """
+    if not (np.isfinite(alpha) and alpha >= 0.0):
+        raise ValueError(f"alpha = {alpha}: must be a finite P L^2 / EI >= 0")
+    if not (np.isfinite(phi_rad) and -0.5 * math.pi < phi_rad <= 0.5 * math.pi):
+        raise ValueError(f"phi_rad = {phi_rad}: must be in (-pi/2, pi/2]")
+    if alpha == 0.0:
+        return 0.0, 1.0, 0.0
+
+    def rhs(_, y):
+        return [y[1], -alpha * math.cos(y[0] - phi_rad), math.sin(y[0]), math.cos(y[0])]
+
+    def end(curvature0):
+        return solve_ivp(rhs, (0.0, 1.0), [0.0, curvature0, 0.0, 0.0], rtol=1e-11, atol=1e-12).y[:, -1]
+
+    lo, hi = 0.0, 2.0 * alpha
+    if not (end(lo)[1] <= 0.0 <= end(hi)[1]):
+        raise ValueError(f"alpha = {alpha}, phi = {phi_rad} rad: no equilibrium on the branch from the unloaded rod "
+                         "(past the inclined load's buckling)")
+    c0 = brentq(lambda c: end(c)[1], lo, hi, xtol=1e-13, rtol=1e-13)
+    y = end(c0)
+    return float(y[2]), float(y[3]), float(y[0])
 
 
 def euler_load_clamped_free_n(bending_stiffness_n_m2: float, length_m: float) -> float:

@@ -66,6 +66,7 @@ from fem.episode import (  # the shared pieces, here too for fem.quasistatic's c
 )
 from fem.indenters import Pose
 from fem.nonlinear import SolverError
+from mlsim.errors import OutOfRangeError
 
 __all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "ContactSetup", "tip_height_m", "build_reduced", "run_episode",
            "layer_materials", "bending_ratio", "geometric_error_estimate"]
@@ -824,7 +825,7 @@ def _check_buckling(f: np.ndarray, rod: np.ndarray, n_rods: int, euler_n: float,
     axial = -np.bincount(rod[on], weights=f[on, 2], minlength=n_rods)  # compression > 0
     j = int(np.argmax(axial))
     if axial[j] > limit * euler_n:
-        raise SolverError(
+        raise OutOfRangeError(
             f"{case}: rod {j} carries {axial[j]:.3g} N along its axis, {axial[j] / euler_n:.2f} x its Euler buckling load "
             f"{euler_n:.3g} N (base clamped, tip free: pi^2 EI / 4 L^2 of its layered section), beyond "
             f"fidelity.solve.buckling_limit = {limit}: the {tier} tier's second-order rod kinematics (P-delta) cannot follow a rod "
@@ -841,7 +842,7 @@ def _check_small_strain(du: np.ndarray, rod: np.ndarray, rod_height_m: float, li
     i = int(np.argmax(size))
     if size[i] > limit * rod_height_m:
         where = f"rod {int(rod[i])}" if rod[i] >= 0 else "the base"
-        raise SolverError(
+        raise OutOfRangeError(
             f"{case}: a contact point of {where} moves {size[i] * 1e3:.2f} mm, {size[i] / rod_height_m:.0%} of the "
             f"{rod_height_m * 1e3:.1f} mm rod height, beyond fidelity.solve.small_strain_limit = {limit}: the {tier} tier's "
             "small-strain model is invalid there. An indenter pressed deeper than its edge rounding into rods in its path "

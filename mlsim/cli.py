@@ -310,7 +310,7 @@ def cmd_sweep(args) -> int:
     try:
         summary = sweep(scene, varies, out, mode="zip" if args.zip else "grid", loads=loads, direction=direction, angles=tuple(args.angles),
                         wanted=wanted, workers=args.workers, executor=args.executor, address=args.address, cache_dir=args.cache,
-                        progress=not args.quiet, log=log)
+                        progress=not args.quiet, log=log, escalate_to=None if args.escalate_tier == "none" else args.escalate_tier)
     except KeyboardInterrupt:
         print(f"interrupted: the finished variants are stored in {out}; rerun the same command to complete the sweep", file=sys.stderr)
         return 130
@@ -390,6 +390,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--load", action="append", metavar="SCENE", help="a scene file whose [load] every variant gets (repeat; default: "
                    "scenes/press.toml and scenes/swipe.toml)")
     p.add_argument("--direction-scene", metavar="SCENE", help="the direction study's load (default scenes/direction_test.toml)")
+    p.add_argument("--escalate-tier", choices=["nonlinear", "none"], default="nonlinear",
+                   help="the tier that solves a load the variant's fast tier refuses as beyond its model (rods near buckling, "
+                        "contact points past small strain); the report's tiers column says which answered (default nonlinear: "
+                        "minutes per load on the default mesh; none: record the refusal)")
     p.add_argument("--angles", type=float, nargs="+", default=[0.0, 45.0, 90.0], metavar="DEG", help="the direction study's push directions")
     p.add_argument("--metrics", action="append", default=None, metavar="LIST",
                    help="what to measure (comma-separated; default all): brightness, tear, separation, direction")

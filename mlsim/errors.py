@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["MlsimError", "SceneError", "Problem", "MeshingError", "SolverError", "require_finite"]
+__all__ = ["MlsimError", "SceneError", "Problem", "MeshingError", "SolverError", "OutOfRangeError", "require_finite"]
 
 
 class MlsimError(RuntimeError):
@@ -54,6 +54,12 @@ class MeshingError(MlsimError):
 
 class SolverError(MlsimError):
     """A nonlinear solve that did not converge (names the case, load factor and residual)."""
+
+
+class OutOfRangeError(SolverError):
+    """A fast tier (``linear``, ``reduced``) refusing a load beyond the range of its model: a contact
+    point moved past ``small_strain_limit`` of the rod height, or a rod loaded past ``buckling_limit``
+    of its Euler load. The ``nonlinear`` tier answers such loads (``mlsim sweep`` hands them to it)."""
 
 
 def require_finite(array, what: str, fix: str, error: type[Exception] = ValueError) -> None:

@@ -18,7 +18,7 @@ from beam_helpers import buckling_load, square_beam
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-from fem.elastica import cantilever_tip, engesser_load_n, euler_load_clamped_free_n
+from fem.elastica import cantilever_inclined_end, cantilever_tip, engesser_load_n, euler_load_clamped_free_n
 from fem.elasticity import assemble, solve_static
 from fem.materials.linear_elastic import lame_parameters
 from fem.nonlinear import solve_nonlinear
@@ -68,6 +68,30 @@ def test_the_elastica_closed_form():
         cantilever_tip(-1.0)
     with pytest.raises(ValueError, match="alpha = nan"):
         cantilever_tip(float("nan"))
+
+
+def test_the_inclined_end_load_elastica():
+    """fem.elastica.cantilever_inclined_end: the perpendicular load is Bisshopp and Drucker's closed form;
+    a small inclined load bends the rod as its perpendicular part alone (alpha cos phi / 3); an axial
+    load below buckling leaves it straight; an added axial part on the same perpendicular
+    component deflects it more (P-delta); bad input is refused."""
+    for alpha in (1.0, 3.0, 5.0):
+        delta, along, theta = cantilever_tip(alpha)
+        x, z, theta_end = cantilever_inclined_end(alpha, 0.0)
+        assert (x, z, theta_end) == pytest.approx((delta, along, theta), abs=1e-8)
+    for phi in (0.3, 1.0):
+        x, z, _ = cantilever_inclined_end(1e-3, phi)
+        assert x == pytest.approx(1e-3 * math.cos(phi) / 3.0, rel=2e-3) and z == pytest.approx(1.0, abs=1e-6)
+    assert cantilever_inclined_end(2.0, 0.5 * math.pi) == pytest.approx((0.0, 1.0, 0.0), abs=1e-10)  # 2 < pi^2 / 4
+    # a load tilted towards the base compresses the rod as it bends it: at alpha = 2 the tilted rod's
+    # moment arm grows with its deflection (P-delta), so its deflection per unit perpendicular load is larger
+    x0, _, _ = cantilever_inclined_end(2.0, 0.0)
+    x1, _, _ = cantilever_inclined_end(2.0 / math.cos(0.4), 0.4)  # the same perpendicular component
+    assert x1 > x0
+    with pytest.raises(ValueError, match="alpha = -1"):
+        cantilever_inclined_end(-1.0, 0.0)
+    with pytest.raises(ValueError, match="phi_rad = 2"):
+        cantilever_inclined_end(1.0, 2.0)
 
 
 def test_a_cantilever_under_a_dead_end_load_follows_the_elastica(beam):

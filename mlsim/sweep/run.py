@@ -44,6 +44,10 @@ DEFAULT_DIRECTION = SCENES / "direction_test.toml"
 DEFAULT_ANGLES = (0.0, 45.0, 90.0)
 #: what a sweep can measure; each costs its own stages (``--metrics``)
 METRICS = ("brightness", "tear", "separation", "direction")
+#: the tier that answers a load the variant's fast tier refuses as beyond its model (rods near buckling in
+#: the swipe over 10.5-12 mm heights and 3-4 mm diameters): the quasi-static nonlinear tier, whose equilibria
+#: hold there (no limit point below the Euler load; tests/test_nonlinear_large_deflection.py)
+ESCALATE_TO = "nonlinear"
 #: the fields of ``fidelity.solve`` a load file carries along (how the load must be stepped)
 LOAD_SOLVE_FIELDS = ("substeps", "rod_kinematics")
 
@@ -91,18 +95,32 @@ def _stage_record(res) -> dict:
     return {"actions": {s.stage.name: s.action for s in res.steps}, "seconds": {k: round(v, 3) for k, v in res.seconds.items()}}
 
 
-def _load_metrics(scene, load: Load, cache_dir, wanted) -> dict:
-    """One load on one variant: brightness (camera) and tear risk (solve)."""
+def _load_metrics(scene, load: Load, cache_dir, wanted, escalate_to: str | None = ESCALATE_TO) -> dict:
+    """One load on one variant: brightness (camera) and tear risk (solve). A load the variant's fast
+    tier refuses as beyond its model (:class:`mlsim.errors.OutOfRangeError`) is solved again by
+    ``escalate_to`` (None: recorded as failed)."""
     from dllm.calibration import grey
     from mlsim.render import rod_disks_px
     from mlsim.render.optics import disk_masks
 
+    from mlsim.errors import OutOfRangeError
+
     # the solve asked for by name: a cached camera result alone would leave it out of the plan
     outputs = ("solve", "camera") if "brightness" in wanted else ("solve",)
     s = load.apply(scene, outputs)
-    res = _run(s, cache_dir, outputs)
+    escalated = None
+    try:
+        res = _run(s, cache_dir, outputs)
+    except OutOfRangeError as exc:
+        # a load past the fast tier's model (a rod near buckling, a contact point past small strain):
+        # the reference tier answers it, and the record says which tier did and why
+        if escalate_to is None or s.fidelity.solve.tier == escalate_to:
+            raise
+        escalated = {"from_tier": s.fidelity.solve.tier, "reason": _reason(exc)}
+        s = s.with_values({"fidelity.solve.tier": escalate_to})
+        res = _run(s, cache_dir, outputs)
     ep = res.results["solve"]
-    out = {"ok": True, **_stage_record(res)}
+    out = {"ok": True, **_stage_record(res), "escalated": escalated}
     if "tear" in wanted:
         out.update(metrics.tear_risk(ep, s))
     out["peak_normal_force_n"] = float(np.max(ep.normal_force_n))
@@ -185,7 +203,7 @@ def variant_record(job: dict) -> dict:
     record = {"loads": {}, "beam_strain_per_n": metrics.beam_strain_per_newton(scene.sensor.rod.height_mm, scene.sensor.rod.diameter_mm, core)}
     if wanted & {"brightness", "tear"}:
         for ld in job["loads"]:
-            record["loads"][ld["name"]] = _guarded(_load_metrics, scene, Load(**ld), job["cache_dir"], wanted)
+            record["loads"][ld["name"]] = _guarded(_load_metrics, scene, Load(**ld), job["cache_dir"], wanted, job.get("escalate_to", ESCALATE_TO))
     if "separation" in wanted:
         record["separation"] = _guarded(_separation, scene, job["cache_dir"])
     if "direction" in wanted and job["direction"] is not None:
@@ -225,10 +243,12 @@ def _json_default(value):
 def sweep(base, varies: list[Vary], out_dir: str | Path, *, mode: str = "grid", loads: list[Load] | None = None,
           direction: Load | None = None, angles=DEFAULT_ANGLES, wanted=METRICS, workers: int = 1, executor: str = "local",
           address: str | None = None, cache_dir: str | Path | None = None, progress: bool = True,
-          log: Callable[[str], None] = print, limit: int | None = None) -> dict:
+          log: Callable[[str], None] = print, limit: int | None = None, escalate_to: str | None = ESCALATE_TO) -> dict:
     """Run (or complete) a sweep into ``out_dir``; returns its summary and writes the report.
 
-    ``limit``: stop after this many new variants (for tests; a rerun continues)."""
+    ``escalate_to``: the tier that solves a load the variant's fast tier refuses as beyond its model
+    (None: the refusal is recorded). ``limit``: stop after this many new variants (for tests; a rerun
+    continues)."""
     from tqdm.auto import tqdm
 
     from mlsim import pipeline
@@ -271,7 +291,7 @@ def sweep(base, varies: list[Vary], out_dir: str | Path, *, mode: str = "grid", 
     log(f"[sweep] {len(vs)} variants ({refused} refused by the scene model), {len(vs) - len(todo) - refused} already stored, "
         f"{len(todo)} to run on {workers} {executor} worker(s)")
     common = {"loads": [vars(ld) for ld in loads], "direction": None if direction is None else vars(direction),
-              "angles": [float(a) for a in angles], "metrics": list(wanted), "cache_dir": str(cache.root)}
+              "angles": [float(a) for a in angles], "metrics": list(wanted), "cache_dir": str(cache.root), "escalate_to": escalate_to}
     by_id = {v.variant_id: v for v in todo}
     jobs = ({"variant_id": v.variant_id, "episode_id": v.label, "scene": v.scene.model_dump(mode="json"), **common} for v in todo)
     threads = max(1, (os.cpu_count() or 1) // max(workers, 1))
