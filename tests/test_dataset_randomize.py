@@ -7,6 +7,7 @@ with the drawn brightness exactly)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from mlsim.dataset.spec import load_dataset_spec
 from mlsim.scene import SceneError
 from test_dataset import write_spec
 
+ROOT = Path(__file__).resolve().parents[1]
 RANGES = '[randomize]\n"camera.read_noise_e" = [1.0, 4.0]\n"emission.brightness_photons_per_m2" = [1.5e19, 4.0e19]\n'
 
 
@@ -64,27 +66,56 @@ def test_values_follow_the_seed_and_fill_their_ranges(tmp_path):
     assert abs(np.corrcoef(r.T)[0, 1]) < 0.1  # independent draws (|r| < 0.1: 2.8 sigma at n = 800)
 
 
+def _on_the_tiny_sensor(spec_path):
+    """The spec's screw scene on the tiny scene's 2 x 2 sensor and mesh (scenes/mavig_tiny.toml: the
+    shipped mesh, its precomputes in seconds) seen by a 96 px camera. On the default 5 x 5 sensor the
+    reduced tier's precompute alone took 2 min on the shared 2-core machine (the test 169-223 s)."""
+    screw = spec_path.parent / "screw.toml"
+    text = screw.read_text()
+    for old, new in (("[sensor]\nrows = 5\ncols = 5\nsurface_size_mm = 36.0\n",
+                      "[sensor]\nrows = 2\ncols = 2\npitch_mm = 7.2\n\n[sensor.rod]\ndiameter_mm = 5.0\nheight_mm = 9.0\n"),
+                     ("[fidelity.mesh]\nedge_length_mm = 2.0\n", "[fidelity.mesh]\nedge_length_mm = 2.5\n")):
+        assert old in text, "the screw scene's sensor or mesh changed: update _on_the_tiny_sensor"
+        text = text.replace(old, new, 1)
+    screw.write_text(text + "\n[camera]\nwidth_px = 96\nheight_px = 96\n")
+    return spec_path
+
+
 def test_randomised_episodes_are_stored_reproducible_and_physical(tmp_path):
-    """One push episode three times: randomised twice into two directories (the same bytes, the
-    values stored, listed by the card and the Parquet table), and without randomisation: the camera's
-    noiseless ML signal scales with the drawn brightness exactly (the emission is linear in it)."""
+    """One push episode three times: randomised into a dataset and again by its worker's function (the
+    same values and arrays; the values stored, listed by the card and the Parquet table), and without
+    randomisation: the camera's noiseless ML signal scales with the drawn brightness exactly (the emission is linear in it)."""
     import pandas as pd
 
+    from mlsim.dataset.card import _randomized_lines
+    from mlsim.pipeline import Cache, stage_key
+    from mlsim.scene import load_scene
+
     extra = '[randomize]\n"emission.brightness_photons_per_m2" = [1.5e19, 4.0e19]\n'
-    spec, base = load_dataset_spec(write_spec(tmp_path, samples_per_action=1, people=1, actions=["push"], extra=extra))
-    plain_spec, _ = load_dataset_spec(write_spec(tmp_path, samples_per_action=1, people=1, actions=["push"]))
-    for name, s in (("a", spec), ("b", spec), ("plain", plain_spec)):
-        gen.generate(s, base, tmp_path / name, workers=1, progress=False, log=lambda m: None)
-    a, b, plain = (store.read_episode(tmp_path / n, "push_00000") for n in ("a", "b", "plain"))
-    drawn = gen.plan_episodes(spec)[0][0]["randomized"]
-    assert a["randomized"] == b["randomized"] == drawn and "randomized" not in plain
-    assert np.array_equal(a["dllm_features"], b["dllm_features"]) and np.array_equal(a["rod_signal_e"], b["rod_signal_e"])
+    spec, base = load_dataset_spec(_on_the_tiny_sensor(write_spec(tmp_path, samples_per_action=1, people=1, actions=["push"], extra=extra)))
+    plain_spec, _ = load_dataset_spec(_on_the_tiny_sensor(write_spec(tmp_path, samples_per_action=1, people=1, actions=["push"])))
+    tiny = load_scene(ROOT / "scenes" / "mavig_tiny.toml")
+    assert stage_key(base, "mesh") == stage_key(tiny, "mesh")  # the shipped mesh (tests/data/meshes)
+    gen.generate(spec, base, tmp_path / "a", workers=1, progress=False, log=lambda m: None)
+    a = store.read_episode(tmp_path / "a", "push_00000")
+    # the same job again and the plain spec's, by the worker's function run here (a dataset's worker
+    # costs more to start than the tiny episode): the same values and arrays as the store holds
+    common = {"base_scene": base.model_dump(mode="json"), "interaction": spec.interaction.model_dump(mode="json"),
+              "cache_dir": str(Cache().root), "store_frames": spec.store_frames}
+    job = gen.plan_episodes(spec)[0][0]
+    drawn = job["randomized"]
+    again = gen.run_episode_job(job | common)
+    plain = gen.run_episode_job(gen.plan_episodes(plain_spec)[0][0] | common)
+    assert a["randomized"] == again["attrs"]["randomized"] == drawn and "randomized" not in plain["attrs"]
+    for name in ("dllm_features", "rod_signal_e"):
+        assert np.array_equal(a[name], np.asarray(again["arrays"][name]).astype(a[name].dtype)), name
     ratio = drawn["emission.brightness_photons_per_m2"] / base.emission.brightness_photons_per_m2
-    lit = plain["rod_signal_e"] > 1e-3 * plain["rod_signal_e"].max()
-    np.testing.assert_allclose(a["rod_signal_e"][lit], ratio * plain["rod_signal_e"][lit], rtol=1e-4)
+    plain_signal = np.asarray(plain["arrays"]["rod_signal_e"]).astype(a["rod_signal_e"].dtype)
+    lit = plain_signal > 1e-3 * plain_signal.max()
+    np.testing.assert_allclose(a["rod_signal_e"][lit], ratio * plain_signal[lit], rtol=1e-4)
     card = (tmp_path / "a" / "README.md").read_text()
     assert "## Randomised per episode" in card and "| `emission.brightness_photons_per_m2` | 1.5e+19 | 4e+19 |" in card
-    assert "Randomised" not in (tmp_path / "plain" / "README.md").read_text()
+    assert _randomized_lines(plain_spec) == []  # the card's section, absent without [randomize]
     df = pd.read_parquet(tmp_path / "a" / "dllm_frames.parquet")
     assert (df["emission.brightness_photons_per_m2"] == drawn["emission.brightness_photons_per_m2"]).all()
     assert json.loads(json.dumps(store.read_attrs(tmp_path / "a")["spec"]))["randomize"] == {
