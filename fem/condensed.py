@@ -430,10 +430,10 @@ def solve_points_at_force(target_n: float, z_guess: float, solve_at_z, z_free: f
 
     The normal force is non-increasing in z, zero at and above ``z_free`` (no contact). From
     ``z_guess`` the search marches down in doubling steps until the force exceeds the target, never
-    below ``z_min`` (m; None: unbounded), the lowest height the caller's contact points cover
-    (:func:`fem.episode.path_low_m`: below it the indenter has passed them and the force falls to
-    zero, so an unbounded march ran on to z = -1.6e18 mm), then closes the bracket by the Illinois
-    secant on F(z) - target. Returns (z, payload, evaluations).
+    below ``z_min`` (m; None: unbounded; the tiers pass the rods' roots, the base's top: no indenter
+    gets lower), then closes the bracket by the Illinois secant on F(z) - target. Unbounded, a march
+    whose trials had passed the contact points (zero force below them) ran on to z = -1.6e18 mm.
+    Returns (z, payload, evaluations).
 
     Raises :class:`SolverError` when the target is not reached at ``z_min``, when the force falls as
     the indenter goes deeper (the monotony the search rests on fails: the solves at the two heights
@@ -459,7 +459,7 @@ def solve_points_at_force(target_n: float, z_guess: float, solve_at_z, z_free: f
                               f"{target_n:.4g} N cannot be bracketed; use more fidelity.solve.substeps")
         if z_min is not None and lo <= z_min:
             raise SolverError(f"{case}: cannot reach {target_n:.4g} N: {f_lo:.4g} N at z = {lo * 1e3:.4f} mm, the lowest height the "
-                              "contact points cover (3 mm below the rod tips under a force-controlled press); lower the press's force_n")
+                              "search allows (the rods' roots); lower the press's force_n")
         hi, f_hi = lo, f_lo
         step *= 2.0
         lo = lo - step if z_min is None else max(lo - step, z_min)

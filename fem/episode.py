@@ -274,23 +274,14 @@ def path_points(X: np.ndarray, shape: IndenterShape, load, grid: trajectory.Time
     taken as low as the deepest displacement-controlled press or, under force control, 3 mm below
     the tips (rod tips under a force press seldom move further)."""
     state = trajectory.initial_state(load, tip_z)
-    low = path_low_m(load, tip_z)
+    depth = sum(s.depth_mm for s in load.segments if s.kind == "press" and s.depth_mm is not None) * 1e-3
+    low = tip_z - max(depth - load.start_gap_mm * 1e-3, 0.0) - (3e-3 if any(s.kind == "press" and s.force_n is not None for s in load.segments) else 0.0)
     near = np.zeros(len(X), dtype=bool)
     for t in grid.step_times_s:
         state = trajectory.advance(load, state, t)
         x, y, _ = state.position_m
         near |= indenter_gap(shape, Pose((x, y, low), state.yaw_rad), X) < margin_m
     return np.flatnonzero(near)
-
-
-def path_low_m(load, tip_z: float) -> float:
-    """The lowest height (m) of the indenter for which :func:`path_points` keeps contact points: the
-    deepest displacement-controlled press or, under force control, 3 mm below the tips. Force
-    control searches no lower (:func:`fem.condensed.solve_points_at_force`): there the indenter would
-    have passed the points kept."""
-    depth = sum(s.depth_mm for s in load.segments if s.kind == "press" and s.depth_mm is not None) * 1e-3
-    force = any(s.kind == "press" and s.force_n is not None for s in load.segments)
-    return tip_z - max(depth - load.start_gap_mm * 1e-3, 0.0) - (3e-3 if force else 0.0)
 
 
 def tip_height_m(mesh) -> float:

@@ -652,7 +652,7 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
     """Solve the scene's load on ``mesh`` with the ``nonlinear`` tier; returns a
     :class:`fem.quasistatic.Episode` (tier ``"nonlinear"``, element ``"P2P1"``)."""
     from fem.elasticity import dof_components
-    from fem.episode import ContactSetup, Episode, LinearBody, SolveSettings, _bar, _check_finite, layer_materials, path_low_m, path_points
+    from fem.episode import ContactSetup, Episode, LinearBody, SolveSettings, _bar, _check_finite, layer_materials, path_points
 
     settings = settings or SolveSettings.from_scene(scene)
     if scene.load is None:
@@ -738,7 +738,7 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
                 return condensed.normal_force(lz), (xz, lz, p)
 
             z, (x, law, pose), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case,
-                                                                z_min=path_low_m(load, tip_z))
+                                                                z_min=tip_z - scene.sensor.rod.height_mm * 1e-3)
             x_last = None
             state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
             target[s] = state.force_target_n

@@ -61,7 +61,6 @@ from fem.episode import (  # the shared pieces, here too for fem.quasistatic's c
     _bar,
     _check_finite,
     layer_materials,
-    path_low_m,
     path_points,
     tip_height_m,
 )
@@ -642,7 +641,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                     return condensed.normal_force(law), (u, law, p, info)
 
                 z, (u, law, pose, info), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case,
-                                                                             z_min=path_low_m(load, tip_z))
+                                                                             z_min=tip_z - scene.sensor.rod.height_mm * 1e-3)
                 state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
                 target[s] = state.force_target_n
                 n_it = count[0]

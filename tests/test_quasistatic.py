@@ -154,7 +154,7 @@ def test_the_force_search_stays_above_its_floor_and_says_why_it_stops():
     from fem.nonlinear import SolverError
 
     seen = []
-    with pytest.raises(SolverError, match=r"step 5: cannot reach 30 N: 10 N at z = 8\.0000 mm, the lowest height"):
+    with pytest.raises(SolverError, match=r"step 5: cannot reach 30 N: 10 N at z = 8\.0000 mm, the lowest height the search allows"):
         solve_points_at_force(30.0, 10.9e-3, _penalty_force(5000.0, 10.0e-3, seen=seen), 11.0e-3, case="step 5", z_min=8.0e-3)
     assert np.all(np.isfinite(seen)) and min(seen) == 8.0e-3 and len(seen) < 10
     # the force falls as the indenter goes deeper (it passed the points between two trials): refused,
