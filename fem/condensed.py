@@ -456,7 +456,8 @@ def solve_points_at_force(target_n: float, z_guess: float, solve_at_z, z_free: f
         if f_lo < f_hi - tol_rel * target_n:
             raise SolverError(f"{case}: the normal force falls from {f_hi:.4g} N at z = {hi * 1e3:.4f} mm to {f_lo:.4g} N at z = "
                               f"{lo * 1e3:.4f} mm, deeper: the contact solves are not monotone in the indenter's height, so "
-                              f"{target_n:.4g} N cannot be bracketed; use more fidelity.solve.substeps")
+                              f"{target_n:.4g} N cannot be bracketed (a probe wedged between tips with friction has several equilibria): "
+                              "press on a tip (load.start_xy_mm)")
         if z_min is not None and lo <= z_min:
             raise SolverError(f"{case}: cannot reach {target_n:.4g} N: {f_lo:.4g} N at z = {lo * 1e3:.4f} mm, the lowest height the "
                               "search allows (the rods' roots); lower the press's force_n")
