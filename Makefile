@@ -45,7 +45,7 @@ $(STAMP): pyproject.toml | llvm
 	$(PIP) install --upgrade pip setuptools wheel 2>&1 | grep -v "is ignored" || true
 	$(PIP) install "$(TORCH)" 2>&1 | grep -v "is ignored" || true
 	$(PIP) install -e ".[test,ray,docs]" 2>&1 | grep -v "is ignored" || true
-	$(PY) -c "import torch, mitsuba, pytetwild, trimesh, manifold3d, meshio, pydantic, colour, cv2, kornia, skfem, zarr, ray, threadpoolctl, numba, xdist, mkdocs, material, mkdocstrings_handlers.python; assert torch.__version__.startswith('2.13.0'), torch.__version__"
+	$(PY) -c "import torch, mitsuba, pytetwild, trimesh, manifold3d, meshio, pydantic, colour, cv2, kornia, skfem, zarr, ray, threadpoolctl, numba, xdist, mkdocs, material, mkdocstrings_handlers.python, pyarrow, pandas; assert torch.__version__.startswith('2.13.0'), torch.__version__"
 	touch $(STAMP)
 
 # Mitsuba's CPU (llvm_*) variants need libLLVM 17 or newer: 14-16 are too old or crash inside the

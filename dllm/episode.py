@@ -51,16 +51,17 @@ class DllmEpisode:
                 "calibration_radius_px": round(self.calibration.radius_px, 3), "counts": dict(self.counts)}
 
 
-def calibrate_scene(scene, calibration_rgb) -> tuple[Calibration, np.ndarray]:
+def calibrate_scene(scene, calibration_rgb, debug_path=None) -> tuple[Calibration, np.ndarray]:
     """(the calibration of a scene's calibration frame (H, W, 3), with Hough's parameters from the
-    optics' paraxial rod images; the rod each taxel sees (N,), the nearest of those images)."""
+    optics' paraxial rod images; the rod each taxel sees (N,), the nearest of those images).
+    ``debug_path``: where the overlay of the circles found is written (:func:`dllm.calibration.calibrate`)."""
     from dllm.calibration import calibrate, hough_params_for
     from mlsim.render import rod_disks_px
 
     g = scene.sensor
     expected = rod_disks_px(scene)
     cal = calibrate(calibration_rgb, g.rows, g.cols, hough_params_for(calibration_rgb.shape[:2], g.rows, g.cols, scene.dllm.blur_sigma_px,
-                                                                      expected=expected))
+                                                                      expected=expected), debug_path=debug_path)
     return cal, np.linalg.norm(cal.centres_px[:, None] - expected[0][None], axis=2).argmin(axis=1)
 
 

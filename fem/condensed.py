@@ -424,24 +424,46 @@ def normal_force(law: _Law) -> float:
     return float(-law.f[:, 2].sum())
 
 
-def solve_points_at_force(target_n: float, z_guess: float, solve_at_z, z_free: float, tol_rel: float = 1e-6, max_iterations: int = 60, case: str = "force control"):
+def solve_points_at_force(target_n: float, z_guess: float, solve_at_z, z_free: float, tol_rel: float = 1e-6, max_iterations: int = 60,
+                          case: str = "force control", z_min: float | None = None):
     """Height z of the indenter at which ``solve_at_z(z)`` -> (normal force, payload) gives ``target_n``.
 
-    The normal force is non-increasing in z, zero at and above ``z_free`` (no contact). Bracketing
-    secant (Illinois) on F(z) - target. Returns (z, payload, evaluations).
+    The normal force is non-increasing in z, zero at and above ``z_free`` (no contact). From
+    ``z_guess`` the search marches down in doubling steps until the force exceeds the target, never
+    below ``z_min`` (m; None: unbounded; the tiers pass the rods' roots, the base's top: no indenter
+    gets lower), then closes the bracket by the Illinois secant on F(z) - target. Unbounded, a march
+    whose trials had passed the contact points (zero force below them) ran on to z = -1.6e18 mm.
+    Returns (z, payload, evaluations).
+
+    Raises :class:`SolverError` when the target is not reached at ``z_min``, when the force falls as
+    the indenter goes deeper (the monotony the search rests on fails: the solves at the two heights
+    are on different branches of the frictional contact problem, or the indenter has passed the
+    points), or after ``max_iterations`` evaluations.
     """
+    if z_min is not None and not z_min < z_free:
+        raise ValueError(f"z_min = {z_min:.6g} m must be below z_free = {z_free:.6g} m")
     if target_n <= 0:
         f, payload = solve_at_z(z_free)
         return z_free, payload, 1
     hi, (f_hi, _) = z_free, solve_at_z(z_free)  # F(hi) - target < 0
     step = max(z_free - z_guess, 1e-5)
     lo = min(z_guess, z_free - 1e-5)
+    if z_min is not None:
+        lo = max(lo, z_min)
     f_lo, p_lo = solve_at_z(lo)
     n_eval = 2
     while f_lo < target_n:  # march down until the force exceeds the target
+        if f_lo < f_hi - tol_rel * target_n:
+            raise SolverError(f"{case}: the normal force falls from {f_hi:.4g} N at z = {hi * 1e3:.4f} mm to {f_lo:.4g} N at z = "
+                              f"{lo * 1e3:.4f} mm, deeper: the contact solves are not monotone in the indenter's height, so "
+                              f"{target_n:.4g} N cannot be bracketed (a probe wedged between tips with friction has several equilibria): "
+                              "press on a tip (load.start_xy_mm)")
+        if z_min is not None and lo <= z_min:
+            raise SolverError(f"{case}: cannot reach {target_n:.4g} N: {f_lo:.4g} N at z = {lo * 1e3:.4f} mm, the lowest height the "
+                              "search allows (the rods' roots); lower the press's force_n")
         hi, f_hi = lo, f_lo
         step *= 2.0
-        lo = lo - step
+        lo = lo - step if z_min is None else max(lo - step, z_min)
         f_lo, p_lo = solve_at_z(lo)
         n_eval += 1
         if n_eval > max_iterations:

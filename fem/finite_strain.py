@@ -779,7 +779,8 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
                 xz, lz = problem.path(x_start, p, pose_old, pstate, case, depth=0 if dynamic else 8)
                 return condensed.normal_force(lz), (xz, lz, p)
 
-            z, (x, law, pose), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case)
+            z, (x, law, pose), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case,
+                                                                z_min=tip_z - scene.sensor.rod.height_mm * 1e-3)
             x_last = None
             state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
             target[s] = state.force_target_n

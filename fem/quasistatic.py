@@ -623,15 +623,26 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             else:
                 z_free = tip_z + 1e-4 + float(np.abs(u0[:, 2]).max())
                 count = [0]
+                warm = force_kw.get("warm")
+                start = None if warm is None else (warm.f, warm.z, warm.rung)
 
                 def at_z(z):
+                    # every trial height starts from this step's warm start, not from the last trial's
+                    # answer: with friction the contact problem can have several solutions (a sphere
+                    # wedged between the tiny scene's four tips), and a trial warm-started from the one
+                    # before lands on that trial's branch, so the force was not a function of the height
+                    # (0, 0.36 and 0.76 N at z = 9.7275 mm by the order of the trials) and the search
+                    # that assumes a monotone force marched past the sensor (z = -1.6e18 mm)
+                    if start is not None:
+                        warm.f, warm.z, warm.rung = start
                     p = Pose((state.position_m[0], state.position_m[1], z), state.yaw_rad)
                     u, law, info = condensed.solve_path(C, u0, X, shape, p, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case,
                                                      **force_kw, **solve_kw)
                     count[0] += info["iterations"]
                     return condensed.normal_force(law), (u, law, p, info)
 
-                z, (u, law, pose, info), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case)
+                z, (u, law, pose, info), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case,
+                                                                             z_min=tip_z - scene.sensor.rod.height_mm * 1e-3)
                 state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
                 target[s] = state.force_target_n
                 n_it = count[0]

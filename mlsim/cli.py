@@ -1,7 +1,7 @@
-"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | sweep | train | evaluate | ablation |
-anyskin-train``, and ``mlsim --version``.
+"""Command line: ``mlsim run | check | mesh | accuracy | direction | ambient | dataset | sweep | detect | calibrate | train |
+evaluate | ablation | anyskin-train``, and ``mlsim --version``.
 
-One grammar (:mod:`mlsim.cli_grammar`): the scene (or spec, or dataset) first, then the shared flags
+One grammar (:mod:`mlsim.cli_grammar`): the scene (or spec, or dataset, or ``detect``'s recording) first, then the shared flags
 ``--set``, ``--dry-run``, ``--out``, ``--workers``, ``--cache``, ``--quiet`` where they make sense, with
 the same defaults; every verb's ``--help`` ends with examples.
 
@@ -320,6 +320,30 @@ def cmd_sweep(args) -> int:
     return EXIT_OK
 
 
+def cmd_detect(args) -> int:
+    from mlsim.detect import run_command
+    from mlsim.scene import Scene, load_scene
+
+    sets = _parse_sets(args.set)
+    return run_command(args, load_scene(args.scene, overrides=sets) if args.scene else Scene().with_values(sets))
+
+
+def cmd_calibrate(args) -> int:
+    from mlsim.scene import load_scene
+    from mlsim.sensor_calibration import calibrate_sensor, plan_calibration
+
+    sets = _parse_sets(args.set)
+    out = Path(args.out) if args.out else Path("out") / f"{load_scene(args.scene, overrides=sets).name}_calibrate"
+    if args.dry_run:
+        print(plan_calibration(args.photo, args.scene, out, idle=args.idle, press=args.press, force_n=args.force_n, overrides=sets))
+        return EXIT_OK
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    fit = calibrate_sensor(args.photo, args.scene, out, idle=args.idle, press=args.press, force_n=args.force_n,
+                           cache=_cache(args), log=log, overrides=sets)
+    print(f"focal length {fit['focal_length_mm']:.4f} +- {fit['focal_length_sigma_mm']:.2g} mm; wrote {out / 'sensor.toml'}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     from mlsim import __version__
 
@@ -329,9 +353,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="VERB")
 
     def verb(name: str, help: str, func, out_default: str = "", scene_help: str = "scene file (TOML), e.g. scenes/mavig_default.toml",
-             metavar: str = "SCENE", **shared):
+             metavar: str = "SCENE", dest: str = "scene", **shared):
         p = sub.add_parser(name, help=help, description=help, epilog=examples_epilog(name), formatter_class=Formatter)
-        p.add_argument("scene", metavar=metavar, help=scene_help)
+        p.add_argument(dest, metavar=metavar, help=scene_help)
         add_shared(p, name, out_default=out_default, **shared)
         p.set_defaults(func=func)
         return p
@@ -399,6 +423,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="what to measure (comma-separated; default all): brightness, tear, separation, direction")
     p.add_argument("--executor", choices=["local", "ray"], default="local", help="local process pool, or Ray (pip install 'mlsim[ray]')")
     p.add_argument("--address", help="Ray cluster address (default: start a local Ray)")
+
+    # real sensors (issue 41): a recording through the DLLM (and the CNN); a scene overlay fitted to recordings
+    p = verb("detect", "a recording (video or folder of frames) through the DLLM (and the CNN): the CSVs, heatmap and events of a simulated run",
+             cmd_detect, "out/detect_<recording name>", metavar="RECORDING", dest="recording",
+             scene_help="a video (MP4, AVI, MKV, MOV) or a folder of PNG/JPEG frames; its first second idle")
+    p.add_argument("--calibration", required=True, metavar="PHOTO",
+                   help="the calibration photo (the sensor without its absorber, lit; SPEC 1.6), same camera and resolution")
+    p.add_argument("--scene", help="the sensor's scene (TOML): its grid, DLLM thresholds and optics (default: SPEC 1.6's 5 x 5, defaults)")
+    p.add_argument("--idle", metavar="VIDEO", help="an idle recording for the thresholds (default: the recording's first second)")
+    p.add_argument("--fps", type=float, help="frame rate of the recording (default: the video's, else the scene's camera)")
+    p.add_argument("--model", help="a classifier of 'mlsim train' (interaction_8class.pt): also write classify.csv")
+
+    p = verb("calibrate", "a scene overlay for a real sensor from its calibration photo (the camera's view), idle video (dark noise) and a "
+                          "press of known force (ML brightness)", cmd_calibrate, "out/<scene name>_calibrate",
+             scene_help="the sensor's scene (TOML): the rods' layout and the camera distance, e.g. scenes/mavig_default.toml")
+    p.add_argument("--photo", required=True, help="the calibration photo (the sensor without its absorber, lit; SPEC 1.6)")
+    p.add_argument("--idle", metavar="VIDEO", help="an idle recording at the scene's camera settings: black level and read noise")
+    p.add_argument("--press", metavar="VIDEO", help="a recorded press (its first second idle) of the scene's [load]: the ML brightness")
+    p.add_argument("--force-n", type=float, metavar="F", help="the press's force (N), set on the [load]'s force-controlled press")
     try:
         from classifiers.cli import add_parsers
     except ImportError:

@@ -2,7 +2,8 @@
 and each verb's examples.
 
 Every verb that reads a scene takes it as its first positional argument (``SCENE``; a dataset spec,
-``SPEC``, for ``mlsim dataset``; a dataset folder, ``DATASET``, for the classifier's verbs) and, where
+``SPEC``, for ``mlsim dataset``; a dataset folder, ``DATASET``, for the classifier's verbs; the
+recording, ``RECORDING``, for ``mlsim detect``, whose scene is optional: ``--scene``) and, where
 they make sense, the same flags with the same defaults:
 
 ==============  =====================================================================================
@@ -29,7 +30,8 @@ from mlsim.errors import Problem, SceneError
 __all__ = ["SHARED_FLAGS", "EXAMPLES", "Formatter", "default_workers", "add_shared", "examples_epilog", "parse_sets"]
 
 #: verb -> the shared flags it takes (the others make no sense for it: ``check`` writes nothing,
-#: ``run`` has no parallel work, the classifier's verbs read a dataset, not the stage cache).
+#: ``run`` has no parallel work, the classifier's verbs read a dataset, not the stage cache,
+#: ``detect`` runs the DLLM on a recording and caches nothing).
 SHARED_FLAGS: dict[str, tuple[str, ...]] = {
     "run": ("--set", "--dry-run", "--out", "--cache", "--quiet"),
     "check": ("--set",),
@@ -39,6 +41,8 @@ SHARED_FLAGS: dict[str, tuple[str, ...]] = {
     "ambient": ("--set", "--dry-run", "--out", "--cache", "--quiet"),
     "dataset": ("--set", "--dry-run", "--out", "--workers", "--cache", "--quiet"),
     "sweep": ("--set", "--dry-run", "--out", "--workers", "--cache", "--quiet"),
+    "detect": ("--set", "--dry-run", "--out", "--quiet"),
+    "calibrate": ("--set", "--dry-run", "--out", "--cache", "--quiet"),
     "train": ("--dry-run", "--out", "--workers", "--quiet"),
     "evaluate": ("--dry-run", "--out", "--quiet"),
     "ablation": ("--dry-run", "--out", "--workers", "--quiet"),
@@ -61,6 +65,10 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
                 "mlsim dataset scenes/interactions/paper.toml --set samples_per_action=20 --dry-run"),
     "sweep": ("mlsim sweep scenes/mavig_default.toml --vary sensor.rod.height_mm=6,7.5,9,10.5,12 --out out/sweep_height",
               "mlsim sweep scenes/mavig_default.toml --zip --vary sensor.materials.core=SC37,PDMS --vary sensor.materials.ml_layer=SC37,PDMS --dry-run"),
+    "detect": ("mlsim detect recording.mp4 --calibration photo.png --scene scenes/mavig_default.toml --out out/detect",
+               "mlsim detect frames/ --calibration photo.png --idle idle.mp4 --model out/model/interaction_8class.pt --dry-run"),
+    "calibrate": ("mlsim calibrate scenes/mavig_default.toml --photo photo.png --idle idle.mp4 --out out/my_sensor",
+                  "mlsim calibrate scenes/mavig_default.toml --photo photo.png --press press.mp4 --force-n 2 --out out/my_sensor --dry-run"),
     "train": ("mlsim train out/small --out out/model", "mlsim train out/small --classes 8 --features distance,angle --workers 2"),
     "evaluate": ("mlsim evaluate out/small --model out/model/interaction_8class.pt --out out/eval",),
     "ablation": ("mlsim ablation out/small --out out/ablation", "mlsim ablation out/small --sets intensity distance+angle"),

@@ -32,7 +32,7 @@ from functools import cache
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from mlsim.units import DIMENSIONLESS, unit_of
+from mlsim.units import DIMENSIONLESS, UNIT_OF_KEYS, unit_of
 
 __all__ = ["FieldDoc", "scene_fields", "scene_reference", "outputs_reference", "cli_reference", "dataset_reference", "validation_reference",
            "benchmarks_reference", "fast_benchmarks", "field_comments", "SLOW_BENCHMARKS", "Recording", "RECORDINGS", "measured",
@@ -206,6 +206,8 @@ def scene_fields(model: type, prefix: str = "") -> list[FieldDoc]:
         unit = unit_of(name)
         if not unit and name in DIMENSIONLESS:
             unit = f"1 ({DIMENSIONLESS[name]})"
+        elif not unit and name in UNIT_OF_KEYS:
+            unit = UNIT_OF_KEYS[name]
         rows.append(FieldDoc(path, _type_name(annotation), unit, _default(field), allowed, doc))
     return rows
 

@@ -719,11 +719,32 @@ def read_toml(path: str | Path, what: str = "scene file") -> dict:
 
 
 def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Scene:
-    """Read and validate a TOML scene. Raises :class:`SceneError` (with every problem) if invalid."""
-    data = read_toml(path)
+    """Read and validate a TOML scene. Raises :class:`SceneError` (with every problem) if invalid.
+
+    A scene may start from another: ``scene = "base.toml"`` (relative to the file) takes that scene
+    and changes the fields this file gives (tables merged, other values replaced): an overlay such as
+    ``mlsim calibrate`` writes."""
+    data = _with_base(read_toml(path), Path(path), ())
     for dotted, value in (overrides or {}).items():
         _set_path(data, _split_path(dotted), value, dotted)
     return scene_from_dict(data, source=str(path))
+
+
+def _with_base(data: dict, path: Path, seen: tuple) -> dict:
+    """``data`` merged over the scene its ``scene`` key names, recursively (:func:`load_scene`)."""
+    if "scene" not in data:
+        return data
+    base_path = (path.parent / str(data.pop("scene"))).resolve()
+    if base_path in seen or base_path == path.resolve():
+        raise SceneError([Problem("scene", str(base_path), "the scenes include each other in a circle")], source=str(path))
+    base = _with_base(read_toml(base_path), base_path, seen + (path.resolve(),))
+
+    def merge(into: dict, over: dict) -> dict:
+        for key, value in over.items():
+            into[key] = merge(dict(into[key]), value) if isinstance(value, dict) and isinstance(into.get(key), dict) else value
+        return into
+
+    return merge(base, data)
 
 
 def scene_from_dict(data: dict, source: str | None = None) -> Scene:

@@ -9,7 +9,7 @@ field that has neither a unit suffix nor a place in :data:`DIMENSIONLESS`.
 
 from __future__ import annotations
 
-__all__ = ["UNIT_SUFFIXES", "UNIT_NAMES", "DIMENSIONLESS", "unit_of"]
+__all__ = ["UNIT_SUFFIXES", "UNIT_NAMES", "DIMENSIONLESS", "UNIT_OF_KEYS", "unit_of"]
 
 #: name suffix -> unit, the longest suffixes first (``_mm_s`` before ``_s``).
 UNIT_SUFFIXES: tuple[tuple[str, str], ...] = (
@@ -86,6 +86,13 @@ DIMENSIONLESS: dict[str, str] = {
     "jitter": "relative", "set_fraction": "a fraction", "median_samples": "samples", "window_samples": "samples",
     "rho_base": "a diffuse reflectance", "rho_shell": "a diffuse reflectance", "rho_foam": "a diffuse reflectance",
     "leg_mass_fraction": "a fraction of the body's mass",
+}
+
+#: numeric fields keyed by scene fields, each value in the unit of the field that keys it (a dataset
+#: spec's ``[randomize]``: ``"camera.gain_db" = [0.0, 6.0]`` is in dB): the keys carry the units, and
+#: ``tests/test_scene_files.py`` checks that every key such a field accepts has one (or is dimensionless).
+UNIT_OF_KEYS: dict[str, str] = {
+    "randomize": "each range in the unit of the scene field that keys it",
 }
 
 

@@ -38,7 +38,9 @@ def test_every_verb_takes_its_shared_flags_with_the_same_defaults(verb):
     for flag in SHARED_FLAGS[verb]:
         assert flag in opts, f"mlsim {verb} lacks {flag}"
     positional = [a for a in p._actions if not a.option_strings and a.dest != "help"]
-    assert [a.metavar for a in positional] in (["SCENE"], ["SPEC"], ["DATASET"]), verb
+    assert [a.metavar for a in positional] in (["SCENE"], ["SPEC"], ["DATASET"], ["RECORDING"]), verb
+    if positional[0].metavar == "RECORDING":  # mlsim detect: a recording first, its (optional) scene by --scene
+        assert "--scene" in opts and opts["--scene"].default is None, verb
     for flag in ("--dry-run", "--quiet"):
         if flag in opts:
             assert isinstance(opts[flag], argparse._StoreTrueAction) and opts[flag].default is False

@@ -54,8 +54,20 @@ def run_cli(command: str, capsys) -> tuple[int, str]:
 
 @pytest.fixture
 def in_tmp(tmp_path, monkeypatch):
-    """A working folder with the repository's scenes: commands' default out/ folders land in it."""
+    """A working folder with the repository's scenes: commands' default out/ folders land in it. The
+    real-sensor commands (``mlsim calibrate``, ``mlsim detect``, issue 41) read recordings, which the
+    docs run with ``--dry-run`` on what is made here: ``photo.png`` and the frame folders ``idle/``
+    and ``recording/``, 160 x 120 px (dark frames: the dry runs read and size them, nothing more)."""
+    import cv2
+    import numpy as np
+
     (tmp_path / "scenes").symlink_to(ROOT / "scenes")
+    frame = np.full((120, 160, 3), 12, np.uint8)
+    cv2.imwrite(str(tmp_path / "photo.png"), frame)
+    for folder in ("idle", "recording"):
+        (tmp_path / folder).mkdir()
+        for k in range(3):
+            cv2.imwrite(str(tmp_path / folder / f"frame_{k}.png"), frame)
     monkeypatch.chdir(tmp_path)
     return tmp_path
 

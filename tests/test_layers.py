@@ -21,8 +21,8 @@ PACKAGES = ("mlsim", "fem", "dllm", "classifiers", "other_sensors")
 BASE = ("mlsim", "mlsim.errors", "mlsim.io", "mlsim.stage", "mlsim.scene", "mlsim.plausibility", "mlsim.cost_model", "mlsim.materials", "mlsim.spectra",
         "mlsim.plots", "mlsim.units", "fem.materials", "fem.materials.linear_elastic", "fem.materials.neo_hookean", "fem.materials.shore_hardness")
 ORCHESTRATION = ("mlsim.pipeline", "mlsim.cli", "mlsim.cli_grammar", "mlsim.dry_run", "mlsim.run_budget", "mlsim.docgen", "mlsim.__main__", "mlsim.dataset",
-                 "mlsim.sweep", "mlsim.accuracy", "mlsim.render.accuracy", "dllm.direction", "dllm.ambient_study", "classifiers.cli",
-                 "classifiers.anyskin_cli")
+                 "mlsim.sweep", "mlsim.accuracy", "mlsim.detect", "mlsim.sensor_calibration", "mlsim.press_brightness", "mlsim.render.accuracy",
+                 "dllm.direction", "dllm.ambient_study", "classifiers.cli", "classifiers.anyskin_cli")
 #: the stage packages: the physics and the detector, no driver of the pipeline
 STAGE_PACKAGES = ("fem", "mlsim.emission", "mlsim.render", "mlsim.camera", "dllm", "classifiers", "other_sensors")
 #: orchestration modules still inside a stage package, to move into one studies package (issue 42's plan,

@@ -148,11 +148,31 @@ def test_expensive_but_plausible_scene_warns_with_the_estimate(capsys):
     assert "warning: the solve stage" in capsys.readouterr().out
 
 
+def _is_dataset_spec(data: dict) -> bool:
+    """A dataset spec names its base scene (``scene = ...``) and has a field only specs have; a scene
+    overlay (issue 41's ``scene = "base.toml"``, what ``mlsim calibrate`` writes) has scene fields only."""
+    from mlsim.dataset.spec import DatasetSpec
+    from mlsim.scene import Scene
+
+    spec_only = set(DatasetSpec.model_fields) - set(Scene.model_fields) - {"scene"}
+    return isinstance(data.get("scene"), str) and bool(spec_only & set(data))
+
+
 def test_shipped_scenes_stay_plausible():
     for path in [*ROOT.glob("scenes/*.toml"), *ROOT.glob("scenes/*/*.toml")]:
-        # a dataset spec (paper.toml, issue 42's small.toml) names its base scene, which is checked here itself
-        if not isinstance(tomllib.loads(path.read_text()).get("scene"), str):
+        # a dataset spec (paper.toml, issue 42's small.toml) names its base scene, which is checked here itself;
+        # a scene overlay is checked merged over its base
+        if not _is_dataset_spec(tomllib.loads(path.read_text())):
             assert plausibility.problems(load_scene(path)) == [], path
+
+
+def test_a_scene_overlay_is_checked_over_its_base_not_skipped_as_a_dataset_spec(tmp_path):
+    overlay = tmp_path / "sensor.toml"
+    overlay.write_text(f'scene = "{TINY}"\n\n[camera]\nfocal_length_mm = 6.0\n')
+    assert not _is_dataset_spec(tomllib.loads(overlay.read_text()))
+    assert _is_dataset_spec(tomllib.loads((ROOT / "scenes" / "interactions" / "small.toml").read_text()))
+    assert plausibility.problems(load_scene(overlay)) == []
+    assert load_scene(overlay).camera.focal_length_mm == 6.0
 
 
 def test_tet_estimate_within_a_factor_of_the_shipped_meshes(tiny_mesh):

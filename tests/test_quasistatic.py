@@ -121,6 +121,52 @@ def test_force_controlled_press_reaches_the_ramp(tiny_mesh, body):
     assert np.ptp(z[ep.t_s > 0.1 + 1e-9]) < 1e-9
 
 
+def _penalty_force(k_n_per_m, z_touch, z_pass=None, seen=None):
+    """F(z) = k (z_touch - z)_+ of a penalty contact, zero again below ``z_pass`` (the indenter has
+    passed the points); the heights asked for are appended to ``seen``."""
+
+    def at_z(z):
+        if seen is not None:
+            seen.append(z)
+        f = k_n_per_m * max(z_touch - z, 0.0)
+        return (0.0 if z_pass is not None and z < z_pass else f), z
+
+    return at_z
+
+
+@pytest.mark.parametrize("z_guess", [10.9e-3, 10.5e-3, 8.2e-3, 6.0e-3])
+def test_the_force_search_finds_the_penalty_height_from_any_first_guess(z_guess):
+    """Above contact, just past the answer or deep below it: the height k (z_touch - z) = F to 1e-6."""
+    from fem.condensed import solve_points_at_force
+
+    seen = []
+    k, z_touch, target = 2000.0, 10.0e-3, 3.0  # 2 N/mm: the answer 1.5 mm below the touch
+    z, payload, n = solve_points_at_force(target, z_guess, _penalty_force(k, z_touch, seen=seen), 11.0e-3, z_min=8.0e-3)
+    assert z == pytest.approx(z_touch - target / k, abs=1e-9) and payload == z and n == len(seen) <= 60
+    assert min(seen) >= 8.0e-3  # never below the floor, even from a first guess under it
+
+
+def test_the_force_search_stays_above_its_floor_and_says_why_it_stops():
+    """A target beyond the force the points can give (the indenter passes them at z_pass): a clear
+    SolverError, every height asked for finite and at or above z_min; before, the march doubled its
+    step 60 times and stopped at z = -1.6e18 mm."""
+    from fem.condensed import solve_points_at_force
+    from fem.nonlinear import SolverError
+
+    seen = []
+    with pytest.raises(SolverError, match=r"step 5: cannot reach 30 N: 10 N at z = 8\.0000 mm, the lowest height the search allows"):
+        solve_points_at_force(30.0, 10.9e-3, _penalty_force(5000.0, 10.0e-3, seen=seen), 11.0e-3, case="step 5", z_min=8.0e-3)
+    assert np.all(np.isfinite(seen)) and min(seen) == 8.0e-3 and len(seen) < 10
+    # the force falls as the indenter goes deeper (it passed the points between two trials): refused,
+    # not marched on
+    seen.clear()
+    with pytest.raises(SolverError, match=r"the normal force falls from 0\.2 N at z = 9\.9000 mm to 0 N .* not monotone"):
+        solve_points_at_force(3.0, 9.9e-3, _penalty_force(2000.0, 10.0e-3, z_pass=9.8e-3, seen=seen), 11.0e-3, z_min=5.0e-3)
+    assert min(seen) >= 5.0e-3
+    with pytest.raises(ValueError, match="z_min .* must be below z_free"):
+        solve_points_at_force(3.0, 9.9e-3, _penalty_force(2000.0, 10.0e-3), 11.0e-3, z_min=11.0e-3)
+
+
 def test_reduced_tier_agrees_with_linear_on_a_uniform_press(tiny_mesh, body):
     """The reduced tier carries a flat punch's uniform press as the linear tier does: total force and
     volume-mean von Mises within 1 %, its 95th percentile within 2 % (the peak, at the punch's rim,

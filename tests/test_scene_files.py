@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from mlsim.units import DIMENSIONLESS, unit_of
+from mlsim.units import DIMENSIONLESS, UNIT_OF_KEYS, unit_of
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -95,9 +95,20 @@ def test_every_numeric_field_has_a_unit_or_is_dimensionless():
     for k in kinds():
         fields += list(_numeric_fields(kind(k).sensor_model))
     assert len(fields) > 150
-    missing = [f"{m}.{f}" for m, f in fields if not unit_of(f) and f not in DIMENSIONLESS and (m, f) not in KNOWN_UNITLESS]
+    missing = [f"{m}.{f}" for m, f in fields
+               if not unit_of(f) and f not in DIMENSIONLESS and f not in UNIT_OF_KEYS and (m, f) not in KNOWN_UNITLESS]
     assert missing == [], "give these a unit suffix (mlsim.units.UNIT_SUFFIXES) or list them in mlsim.units.DIMENSIONLESS"
     assert set(KNOWN_UNITLESS) <= set(fields), "a known gap was fixed: remove it from KNOWN_UNITLESS"
+
+
+def test_fields_keyed_by_scene_fields_take_their_keys_units():
+    """A dataset spec's [randomize] ranges are in the units of the scene fields that key them: every
+    field it accepts carries a unit in its name or is dimensionless."""
+    from mlsim.dataset.randomize import RANDOMIZABLE
+
+    assert set(UNIT_OF_KEYS) == {"randomize"}
+    missing = [p for p in RANDOMIZABLE if not unit_of(p) and p.rsplit(".", 1)[-1] not in DIMENSIONLESS]
+    assert missing == [], "a randomisable field without a unit: give it a unit suffix or list it in mlsim.units.DIMENSIONLESS"
 
 
 def test_unit_of_reads_the_longest_suffix():

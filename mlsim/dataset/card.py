@@ -52,6 +52,7 @@ def write_card(out_dir: str | Path, spec, base, summary: dict) -> Path:
         f"{summary.get('episodes_per_s')} episodes/s, {summary.get('frames_per_s')} frames/s end to end in the last run "
         f"(precompute {summary.get('precompute_s')} s); versions: "
         + ", ".join(f"{k} {v}" for k, v in summary["versions"].items()) + ".",
+        *_randomized_lines(spec),
         "",
         "## How to read it",
         "```python",
@@ -59,7 +60,8 @@ def write_card(out_dir: str | Path, spec, base, summary: dict) -> Path:
         f'episodes = load_episodes("{out}")            # list of dicts',
         f'ds = EpisodeDataset("{out}")                  # torch Dataset',
         "```",
-        "`mlsim train DIR --out MODEL_DIR` trains the SPEC 1.7 CNN on it.",
+        "`mlsim train DIR --out MODEL_DIR` trains the SPEC 1.7 CNN on it. The per-frame DLLM features, labels and wrench "
+        "are also one Parquet table, `dllm_frames.parquet` (a row per frame; `pandas.read_parquet`; columns: `mlsim.dataset.parquet`).",
         "",
         "## What it does not model",
         "- The person's force on the screw is not simulated: the screw's motion is prescribed (displacement control after the clamp), "
@@ -72,6 +74,19 @@ def write_card(out_dir: str | Path, spec, base, summary: dict) -> Path:
     path = out / "README.md"
     atomic_bytes(path, "\n".join(lines).encode())
     return path
+
+
+def _randomized_lines(spec) -> list[str]:
+    """The domain randomisation's ranges (mlsim.dataset.randomize), or nothing without it."""
+    if not spec.randomize:
+        return []
+    from mlsim.dataset.randomize import RANDOMIZABLE
+
+    lines = ["", "## Randomised per episode",
+             f"Drawn uniformly per episode from the spec's seed ({spec.seed}; stream 4, by action and sample), stored in each episode's "
+             "`randomized` attribute and as columns of `dllm_frames.parquet`:", "",
+             "| scene field | low | high | why it varies |", "|---|---|---|---|"]
+    return lines + [f"| `{p}` | {lo:g} | {hi:g} | {RANDOMIZABLE[p]} |" for p, (lo, hi) in sorted(spec.randomize.items())]
 
 
 def _render_tier_detail(render) -> str:

@@ -11,7 +11,8 @@
    frame; cached on disk), then the workers run the episodes (:func:`run_episode_job`: the pipeline
    to the DLLM at the base scene's tiers, single-threaded), and the driver writes each episode as
    it arrives, atomically (:mod:`mlsim.dataset.store`), with a progress bar (rate and ETA);
-4. ``DIR/dataset.json`` (counts, timings, versions) and the dataset card ``DIR/README.md``.
+4. ``DIR/dataset.json`` (counts, timings, versions), once complete the per-frame features and labels
+   as Parquet (``DIR/dllm_frames.parquet``, :mod:`mlsim.dataset.parquet`) and the dataset card ``DIR/README.md``.
 
 Same spec and seed, same features: the workers run one thread each (BLAS reductions keep their
 order) and every random draw is seeded. The mesh is part of the sensor's cache: fTetWild does not
@@ -30,6 +31,7 @@ from typing import Callable
 import numpy as np
 
 from mlsim.dataset import store
+from mlsim.dataset.randomize import RANDOMIZE_STREAM, draw_randomized
 from mlsim.dataset.spec import DatasetSpec
 from mlsim.io import atomic_bytes
 from mlsim.interactions import ACTION_TO_4, ACTIONS, InteractionSpec, Sample, draw_people, draw_sample, frame_labels, interaction_scene
@@ -61,6 +63,8 @@ def plan_episodes(spec: DatasetSpec) -> tuple[list[dict], list[dict]]:
             sample = draw_sample(action, person, spec.interaction, np.random.default_rng([spec.seed, 2, a, k]))
             jobs.append({"episode_id": f"{action}_{k:0{width}d}", "action": action, "label": a, "label_4": ACTION_TO_4[action],
                          "person": person.index, "sample_index": k, "sample": sample.as_dict(), "noise_seed": _seed_int(spec.seed, 3, a, k)})
+            if spec.randomize:  # the sensor's spread (mlsim.dataset.randomize), from its own stream
+                jobs[-1]["randomized"] = draw_randomized(spec.randomize, np.random.default_rng([spec.seed, RANDOMIZE_STREAM, a, k]))
     return jobs, [vars(p) for p in people]
 
 
@@ -73,7 +77,8 @@ def _base_scene(canonical_json: str) -> Scene:
 def _episode(job: dict) -> tuple[Scene, Sample, InteractionSpec]:
     sample, spec = Sample(**job["sample"]), InteractionSpec(**job["interaction"])
     base = _base_scene(json.dumps(job["base_scene"], sort_keys=True))
-    return interaction_scene(base, sample, spec, noise_seed=job["noise_seed"], name=job["episode_id"]), sample, spec
+    scene = interaction_scene(base, sample, spec, noise_seed=job["noise_seed"], name=job["episode_id"])
+    return (scene.with_values(job["randomized"]) if job.get("randomized") else scene), sample, spec
 
 
 def episode_scene(job: dict) -> Scene:
@@ -116,7 +121,8 @@ def run_episode_job(job: dict) -> dict:
     }
     if job["store_frames"]:
         arrays["frames"] = camera.frames
-    attrs = {key: job[key] for key in ("episode_id", "action", "label", "label_4", "person", "sample_index", "noise_seed", "sample")}
+    attrs = {key: job[key] for key in ("episode_id", "action", "label", "label_4", "person", "sample_index", "noise_seed", "sample", "randomized")
+             if key in job}
     attrs.update(n_frames=int(ep.n_frames), fps=float(scene.camera.fps), rod_of_taxel=[int(v) for v in dllm.rod_of_taxel],
                  max_sheet_displacement_mm=float(max(render.info.get("sheet_displacement_mm", [0.0]))),
                  peak_normal_force_n=float(ep.normal_force_n.max()), seconds=round(seconds, 4),
@@ -195,7 +201,9 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     atomic_bytes(out / "dataset.json", json.dumps(summary, indent=2).encode())
     if summary["complete"]:
         from mlsim.dataset.card import write_card
+        from mlsim.dataset.parquet import export_parquet
 
+        export_parquet(out)  # the per-frame table for tools that read Parquet (issue 41)
         write_card(out, spec, base, summary)
     log(f"[dataset] {n_new} episodes in {wall:.1f} s ({summary['episodes_per_s']} episodes/s); {len(stored)}/{len(jobs)} stored in {out}")
     return summary

@@ -13,6 +13,9 @@ A spec is a TOML file (``scenes/interactions/paper.toml``)::
     [interaction]                   # mlsim.interactions.InteractionSpec: the screw, the clamp, the people's ranges
     grip_force_n = 3.0
 
+    [randomize]                     # optional: scene fields drawn per episode (mlsim.dataset.randomize)
+    "camera.gain_db" = [0.0, 6.0]
+
 Unknown keys and bad values are refused with the dotted path, the value and what is valid, as
 scenes are (:mod:`mlsim.scene`).
 """
@@ -24,7 +27,7 @@ import json
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import Field, Strict, ValidationError, field_validator, model_validator
+from pydantic import Field, Strict, ValidationError, field_validator, model_serializer, model_validator
 
 from mlsim.errors import Problem, SceneError
 from mlsim.interactions import ACTIONS, InteractionSpec
@@ -45,6 +48,23 @@ class DatasetSpec(_Model):
     actions: Annotated[tuple[str, ...], Field(min_length=1)] = ACTIONS
     store_frames: Bool = False
     interaction: InteractionSpec = InteractionSpec()
+    # domain randomisation (mlsim.dataset.randomize): scene field -> [low, high], drawn per episode
+    randomize: dict[str, tuple[float, float]] | None = None
+
+    @field_validator("randomize", mode="before")
+    @classmethod
+    def _ranges(cls, ranges):
+        from mlsim.dataset.randomize import check_ranges
+
+        return None if ranges is None else check_ranges(ranges) if isinstance(ranges, dict) else ranges
+
+    @model_serializer(mode="wrap")
+    def _without_absent_randomize(self, handler):
+        # a spec without [randomize] dumps (and hashes) as before it existed: its dataset stays byte-identical
+        data = handler(self)
+        if data.get("randomize", 0) is None:
+            del data["randomize"]
+        return data
 
     @field_validator("actions")
     @classmethod
@@ -92,4 +112,11 @@ def load_dataset_spec(path: str | Path, overrides: dict[str, Any] | None = None)
     base = load_scene(scene_path)
     if base.load is None:
         raise SceneError([Problem("scene", spec.scene, "the base scene needs a [load] (its friction is the screw's)")], source=str(path))
+    for field, ends in (spec.randomize or {}).items():  # both ends of a range must make a valid scene
+        for value in ends:
+            try:
+                base.with_values({field: value})
+            except SceneError as exc:
+                raise SceneError([Problem(f"randomize.{field}", list(ends), f"{value:g} gives an invalid scene: {exc.problems[0].message}")],
+                                 source=str(path)) from None
     return spec, base
