@@ -58,13 +58,20 @@ def test_deep_press_stiffens_as_a_neo_hookean_solid(tiny_mesh):
 
 def test_friction_slip_on_the_nonlinear_tier(tiny_mesh):
     """As the linear tier's test: a probe pressed on the tips and slid ends in gross slip with
-    the tangential force mu times the normal force (within 2 %) after 8 mm."""
+    the tangential force mu times the normal force (within 2 %).
+
+    mu = 0.3 and a 2 mm slide: the tips slip from the first sliding step (stick fraction 0, ratio
+    0.287 then 0.3000 after 0.67 mm) and the probe drags them 1.3 mm further in gross slip. At
+    mu = 0.5 (this test's earlier value) the tips stick and the rods tilt for 5.3 mm, the normal
+    force rising from 2.7 to 4.5 N, before gross slip: an 8 mm slide of up to 46 Newton iterations a
+    step for the same Coulomb law at its end (225 s against 26 s now, on the loaded 2-core machine)."""
     scene0, _, mesh, _ = tiny_mesh
-    mu = 0.5
-    segs = [{"kind": "press", "depth_mm": 0.7, "speed_mm_s": 7.0}, {"kind": "slide", "distance_mm": 8.0, "speed_mm_s": 40.0}]
+    mu = 0.3
+    segs = [{"kind": "press", "depth_mm": 0.7, "speed_mm_s": 7.0}, {"kind": "slide", "distance_mm": 2.0, "speed_mm_s": 40.0}]
     nl = run_nonlinear_episode(_scene(scene0, segs, friction=mu, substeps=2), mesh)
     ratio = np.hypot(nl.contact_force_n[:, 0], nl.contact_force_n[:, 1]) / np.maximum(nl.normal_force_n, 1e-12)
-    end = np.argmin(abs(nl.t_s - 0.3))
+    end = np.argmin(abs(nl.t_s - 0.15))  # the slide's last step (the probe stops there)
+    assert nl.normal_force_n[end] > 1.0
     assert ratio[end] == pytest.approx(mu, rel=0.02)
     assert nl.stick_fraction[end] == 0.0
     assert nl.contact_force_n[end, 0] > 0
