@@ -16,7 +16,7 @@ from mlsim.dataset import generate as gen
 from mlsim.dataset import store
 from mlsim.dataset.spec import load_dataset_spec
 from mlsim.scene import SceneError
-from test_dataset import write_spec
+from test_dataset import EDGE_MM, write_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 RANGES = '[randomize]\n"camera.read_noise_e" = [1.0, 4.0]\n"emission.brightness_photons_per_m2" = [1.5e19, 4.0e19]\n'
@@ -74,7 +74,7 @@ def _on_the_tiny_sensor(spec_path):
     text = screw.read_text()
     for old, new in (("[sensor]\nrows = 5\ncols = 5\nsurface_size_mm = 36.0\n",
                       "[sensor]\nrows = 2\ncols = 2\npitch_mm = 7.2\n\n[sensor.rod]\ndiameter_mm = 5.0\nheight_mm = 9.0\n"),
-                     ("[fidelity.mesh]\nedge_length_mm = 2.0\n", "[fidelity.mesh]\nedge_length_mm = 2.5\n")):
+                     (f"[fidelity.mesh]\nedge_length_mm = {EDGE_MM}\n", "[fidelity.mesh]\nedge_length_mm = 2.5\n")):
         assert old in text, "the screw scene's sensor or mesh changed: update _on_the_tiny_sensor"
         text = text.replace(old, new, 1)
     screw.write_text(text + "\n[camera]\nwidth_px = 96\nheight_px = 96\n")
