@@ -206,12 +206,7 @@ def detect_recording(recording, calibration_photo, out_dir, *, scene=None, idle=
     out_dir.mkdir(parents=True, exist_ok=True)
     use_optics = scene is not None if use_optics is None else use_optics
     scene = scene if scene is not None else Scene()
-    rec = open_recording(recording)
-    idle_rec = open_recording(idle, "--idle") if idle is not None else None
-    if fps is not None and not (np.isfinite(fps) and fps > 0):
-        raise RecordingError("--fps", fps, "must be a number > 0")
-    fps_from = "--fps" if fps is not None else ("the container" if rec.fps else "the scene's camera")
-    fps = float(fps or rec.fps or scene.camera.fps)
+    rec, idle_rec, fps, fps_from = _open_inputs(recording, idle, fps, scene)
     params = DllmParams.from_scene(scene.with_values({"camera.fps": fps}))
     model_result = _load_model(model) if model is not None else None
     photo = read_image(calibration_photo)
@@ -295,6 +290,17 @@ def _jsonable(value):
 # ------------------------------------------------------------------------------ the command line
 # (the parser is declared in mlsim.cli through the grammar's verb() helper: RECORDING, --calibration,
 # --scene, --idle, --fps, --model and the shared --set, --dry-run, --out, --quiet)
+def _open_inputs(recording, idle, fps: float | None, scene):
+    """(recording, idle recording or None, frame rate, where the rate came from): the rate from --fps, else
+    the container, else the scene's camera; a rate that is not a number > 0 refused naming --fps."""
+    rec = open_recording(recording)
+    idle_rec = open_recording(idle, "--idle") if idle is not None else None
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise RecordingError("--fps", fps, "must be a number > 0")
+    fps_from = "--fps" if fps is not None else ("the container" if rec.fps else "the scene's camera")
+    return rec, idle_rec, float(fps or rec.fps or scene.camera.fps), fps_from
+
+
 def plan_detect(recording, calibration_photo, out_dir, *, scene=None, idle=None, fps: float | None = None, model=None) -> str:
     """``mlsim detect --dry-run``: the inputs checked as far as reading them costs nothing (each
     recording's first frame, the photo, the sizes, the model file's presence), the frame rate, the
@@ -304,12 +310,7 @@ def plan_detect(recording, calibration_photo, out_dir, *, scene=None, idle=None,
     from mlsim.scene import Scene
 
     scene = scene if scene is not None else Scene()
-    rec = open_recording(recording)
-    idle_rec = open_recording(idle, "--idle") if idle is not None else None
-    if fps is not None and not (np.isfinite(fps) and fps > 0):
-        raise RecordingError("--fps", fps, "must be a number > 0")
-    fps_from = "--fps" if fps is not None else ("the container" if rec.fps else "the scene's camera")
-    fps = float(fps or rec.fps or scene.camera.fps)
+    rec, idle_rec, fps, fps_from = _open_inputs(recording, idle, fps, scene)
     photo = read_image(calibration_photo)
     for where, r in (("RECORDING", rec), ("--idle", idle_rec)):
         if r is not None and r.shape_hw != photo.shape[:2]:
