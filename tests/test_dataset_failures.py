@@ -14,7 +14,6 @@ import os
 import signal
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from mlsim.dataset import generate as gen
@@ -47,42 +46,63 @@ def _episode_bytes(out: Path) -> dict[str, dict[str, bytes]]:
     return {ep.name: {str(f.relative_to(ep)): f.read_bytes() for f in sorted(ep.rglob("*")) if f.is_file()} for ep in sorted(root.iterdir()) if ep.is_dir()}
 
 
-def test_a_failing_and_a_killed_episode_are_recorded_and_a_rerun_retries_only_them(tmp_path, cache, monkeypatch):
-    spec, base = load_dataset_spec(write_spec(tmp_path, samples_per_action=2, people=2, actions=("push", "pull")))
-    out, clean = tmp_path / "data", tmp_path / "clean"
-    with monkeypatch.context() as patch:
-        patch.setattr(gen, "run_episode_job", _job_with_faults)
-        lines: list[str] = []
-        summary = gen.generate(spec, base, out, workers=2, cache_dir=cache.root, progress=False, log=lines.append)
+@pytest.fixture(scope="module")
+def faulted(tmp_path_factory, cache):
+    """push/pull x 2 episodes generated with RAISES and KILLED failing (2 workers), then the same
+    command rerun: (spec, base, out, what the first run gave, what the rerun gave)."""
+    tmp = tmp_path_factory.mktemp("faults")
+    spec, base = load_dataset_spec(write_spec(tmp, samples_per_action=2, people=2, actions=("push", "pull")))
+    out = tmp / "data"
+    first: dict = {"lines": []}
+    patch = pytest.MonkeyPatch()
+    patch.setattr(gen, "run_episode_job", _job_with_faults)
+    try:
+        first["summary"] = gen.generate(spec, base, out, workers=2, cache_dir=cache.root, progress=False, log=first["lines"].append)
+    finally:
+        patch.undo()
+    first.update(stored=store.complete_episodes(out), failures=store.read_failures(out), card=(out / "README.md").read_text(),
+                 partial=sorted(p.name for p in (out / ".partial").glob("*")), bytes=_episode_bytes(out))
+    second: dict = {"lines": []}
+    second["summary"] = gen.generate(spec, base, out, workers=2, cache_dir=cache.root, progress=False, log=second["lines"].append)
+    return spec, base, out, first, second
+
+
+def test_a_failing_and_a_killed_episode_are_recorded_and_the_others_stored(faulted):
+    _, _, out, first, _ = faulted
+    summary = first["summary"]
     assert summary["episodes_stored"] == 2 and summary["episodes_failed"] == 2 and not summary["complete"]
-    assert store.complete_episodes(out) == {"push_00000", "pull_00001"}
-    failures = store.read_failures(out)
+    assert first["stored"] == {"push_00000", "pull_00001"} and first["partial"] == []  # nothing half-written
+    failures = first["failures"]
     assert failures[RAISES] == {"kind": "error", "error_type": "_Refused", "message": f"episode {RAISES}: the load is refused (made to fail by the test)"}
     assert failures[KILLED]["kind"] == "killed" and failures[KILLED]["error_type"] == "SIGKILL" and "out-of-memory" in failures[KILLED]["message"]
     assert summary["failures"] == failures
-    assert not (out / ".partial").exists() or not any((out / ".partial").iterdir())  # nothing half-written
-    assert any("2 episodes failed" in m and RAISES in m and KILLED in m for m in lines)
-    card = (out / "README.md").read_text()
-    assert "Incomplete: 2 of 4 episodes failed" in card and "SIGKILL" in card and "_Refused" in card
-    before = _episode_bytes(out)
+    assert any("2 episodes failed" in m and RAISES in m and KILLED in m for m in first["lines"])
+    assert "Incomplete: 2 of 4 episodes failed" in first["card"] and "SIGKILL" in first["card"] and "_Refused" in first["card"]
 
-    lines = []
-    rerun = gen.generate(spec, base, out, workers=2, cache_dir=cache.root, progress=False, log=lines.append)
-    assert rerun["episodes_run_now"] == 2 and rerun["complete"] and rerun["episodes_failed"] == 0
-    assert "(2 that failed before)" in lines[0]
+
+def test_a_rerun_retries_only_the_failed_episodes_and_leaves_the_stored_ones_untouched(faulted):
+    _, _, out, first, second = faulted
+    rerun = second["summary"]
+    assert rerun["episodes_run_now"] == 2 and rerun["complete"] and rerun["episodes_failed"] == 0 and rerun["failures"] == {}
+    assert "(2 that failed before)" in second["lines"][0]
     assert not (out / store.FAILURES_NAME).exists() and "Incomplete" not in (out / "README.md").read_text()
     after = _episode_bytes(out)
-    assert {k: after[k] for k in before} == before  # the stored episodes untouched
+    assert set(after) == {"push_00000", "push_00001", "pull_00000", "pull_00001"}
+    assert {k: after[k] for k in first["bytes"]} == first["bytes"]  # byte for byte, every file
 
-    # the recovered dataset is the one a run without faults gives, byte for byte
+
+@pytest.mark.slow
+def test_the_recovered_dataset_is_the_one_a_run_without_faults_gives(faulted, cache, tmp_path):
+    """~30 s more (a third run): behind -m slow."""
+    spec, base, out, _, _ = faulted
+    clean = tmp_path / "clean"
     gen.generate(spec, base, clean, workers=2, cache_dir=cache.root, progress=False, log=lambda m: None)
-    reference = _episode_bytes(clean)
-    assert set(reference) == set(after)
-    for ep in reference:
+    assert store.complete_episodes(clean) == store.complete_episodes(out)
+    for ep in sorted(store.complete_episodes(clean)):
         got, want = store.read_episode(out, ep), store.read_episode(clean, ep)
         for name in store.EPISODE_ARRAYS:
             if name in want:
-                np.testing.assert_array_equal(got[name], want[name], err_msg=f"{ep} {name}")
+                assert got[name].dtype == want[name].dtype and got[name].tobytes() == want[name].tobytes(), (ep, name)
         timings = ("seconds", "stage_seconds", *store.EPISODE_ARRAYS)
         assert {k: v for k, v in got.items() if k not in timings} == {k: v for k, v in want.items() if k not in timings}
 
