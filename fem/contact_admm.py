@@ -539,6 +539,15 @@ class WarmStart:
 
     HIDDEN_KEPT = 64  # states remembered (force control tries a few heights per step, halves nest 8 deep)
 
+    def starting_point(self) -> tuple:
+        """(forces, cone multipliers, rho rung) the next solve starts from, for :meth:`restart_from`."""
+        return self.f, self.z, self.rung
+
+    def restart_from(self, point: tuple) -> None:
+        """Start the next solve from a :meth:`starting_point` taken earlier (force control's trial heights
+        each from the step's own, not from the trial before)."""
+        self.f, self.z, self.rung = point
+
     def hidden_at(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(h, P-delta load) remembered for the point state u, or None."""
         return self.hidden.get(_state_key(u))

@@ -325,9 +325,7 @@ class _Problem:
                 # at relative residuals 4e-6 to 2e-5 on a rod pushed sideways by a sphere, where the
                 # penalty Newton stalled at 1e-2): the best iterate is the step's answer, and the episode
                 # reports the largest residual accepted so
-                self.stalled_steps += 1
-                self.max_stalled_residual = max(self.max_stalled_residual, best[0])
-                return best[1], best[2], it + 1
+                return (*self._accept_stall(best), it + 1)
             if it >= CONDENSED_SLOW_AFTER and history[-1] > CONDENSED_SLOW_RESIDUAL:
                 # far from converging: half steps are cheaper (self.path) than plodding on
                 raise _with_best(SolverError(f"{case}: the condensed Newton is converging slowly (relative residual {history[-1]:.1e} after "
@@ -349,11 +347,16 @@ class _Problem:
                 x_next, r_next, xs, gs = x_c, r_c, [], []
             x, r = x_next, r_next
         if best is not None and best[0] <= CONDENSED_STALL_ACCEPT:
-            self.stalled_steps += 1
-            self.max_stalled_residual = max(self.max_stalled_residual, best[0])
-            return best[1], best[2], self.max_iterations
+            return (*self._accept_stall(best), self.max_iterations)
         raise _with_best(SolverError(f"{case}: the condensed Newton did not converge in {self.max_iterations} iterations; relative residuals "
                                      + ", ".join(f"{h:.1e}" for h in history[-4:])), best)
+
+    def _accept_stall(self, best) -> tuple:
+        """(state, law) of a stalled condensed iteration's best iterate (relative residual, state, law),
+        counted in the episode's timings."""
+        self.stalled_steps += 1
+        self.max_stalled_residual = max(self.max_stalled_residual, best[0])
+        return best[1], best[2]
 
     def jumps(self, pose, state) -> bool:
         """Would the indenter at ``pose`` sink deeper than ``max_jump`` into the points where they are (tunnelling)?"""

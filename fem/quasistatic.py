@@ -624,7 +624,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 z_free = tip_z + 1e-4 + float(np.abs(u0[:, 2]).max())
                 count = [0]
                 warm = force_kw.get("warm")
-                start = None if warm is None else (warm.f, warm.z, warm.rung)
+                start = None if warm is None else warm.starting_point()
 
                 def at_z(z):
                     # every trial height starts from this step's warm start, not from the last trial's
@@ -634,7 +634,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                     # (0, 0.36 and 0.76 N at z = 9.7275 mm by the order of the trials) and the search
                     # that assumes a monotone force marched past the sensor (z = -1.6e18 mm)
                     if start is not None:
-                        warm.f, warm.z, warm.rung = start
+                        warm.restart_from(start)
                     p = Pose((state.position_m[0], state.position_m[1], z), state.yaw_rad)
                     u, law, info = condensed.solve_path(C, u0, X, shape, p, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case,
                                                      **force_kw, **solve_kw)
