@@ -36,9 +36,12 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from multiprocessing.connection import wait as wait_for_sentinels
 from typing import Any
 
-__all__ = ["EXECUTORS", "THREAD_ENV_VARS", "map_unordered", "thread_limit_env"]
+__all__ = ["EXECUTORS", "ON_FAILURE", "THREAD_ENV_VARS", "map_unordered", "thread_limit_env"]
 
 EXECUTORS = ("local", "ray")
+#: What :func:`map_unordered` does when a job raises or its worker dies: stop the whole map, or
+#: yield a :class:`mlsim.dataset.failures.JobFailed` for that item and go on with the others (issue 39).
+ON_FAILURE = ("raise", "record")
 
 THREAD_ENV_VARS = (
     "OMP_NUM_THREADS",
@@ -95,6 +98,7 @@ def map_unordered(
     worker_setup: Callable[..., Any] | None = None,
     setup_args: tuple = (),
     threads_per_worker: int = 1,
+    on_failure: str = "raise",
 ) -> Iterator[tuple[Any, Any]]:
     """Run ``fn(item)`` for every item on a pool of worker processes; yield pairs as jobs finish.
 
@@ -130,6 +134,13 @@ def map_unordered(
         object store).
     threads_per_worker : int
         Threads each worker's numerical libraries may use (OpenMP, BLAS, torch), >= 1.
+    on_failure : {"raise", "record"}
+        ``"raise"``: a failed job stops the map (below). ``"record"``: it is yielded as
+        ``(item, mlsim.dataset.failures.JobFailed(...))`` and the others go on. A local worker killed mid-job (a signal,
+        the out-of-memory killer) breaks the whole process pool: the job that ran in the dead worker
+        is yielded as ``kind="killed"`` with the signal, and the jobs the pool lost with it (running
+        in the workers the pool then terminated, or queued) are run again in a new pool. A Ray
+        actor that dies is replaced.
 
     Yields
     ------
@@ -169,6 +180,8 @@ def map_unordered(
     if executor not in EXECUTORS:
         raise ValueError(f'executor = {executor!r} is not an executor; choose one of: {", ".join(EXECUTORS)}')
     _check_positive_int("workers", workers)
+    if on_failure not in ON_FAILURE:
+        raise ValueError(f'on_failure = {on_failure!r}: choose one of: {", ".join(ON_FAILURE)}')
     env = thread_limit_env(threads_per_worker)
     if worker_setup is not None and not callable(worker_setup):
         raise TypeError(f"worker_setup = {worker_setup!r}: must be a callable or None")
@@ -179,6 +192,10 @@ def map_unordered(
             raise ValueError(
                 f'address = {address!r} is only for executor="ray": drop it, or pass executor="ray"'
             )
+        if on_failure == "record":
+            from mlsim.dataset.failures import map_local_recording
+
+            return map_local_recording(fn, items, workers, env, threads_per_worker, worker_setup, setup_args)
         return _map_local(fn, items, workers, env, threads_per_worker, worker_setup, setup_args)
     ray = _import_ray()
     if address is not None and ray.is_initialized():
@@ -186,7 +203,7 @@ def map_unordered(
             f"address = {address!r}: this process is already connected to Ray; pass address=None to "
             "use that connection, or call ray.shutdown() first"
         )
-    return _map_ray(ray, fn, items, workers, address, env, threads_per_worker, worker_setup, setup_args)
+    return _map_ray(ray, fn, items, workers, address, env, threads_per_worker, worker_setup, setup_args, on_failure == "record")
 
 
 def _check_positive_int(name: str, value) -> None:
@@ -271,7 +288,7 @@ def _run_job(fn, item, setup_error: str | None) -> tuple[bool, Any, int]:
 # --- local process pool ------------------------------------------------------------------------
 
 # Per worker process: what _init_local_worker found (the pool has no other place to keep it).
-_LOCAL_WORKER: dict[str, str | None] = {"setup_error": None}
+_LOCAL_WORKER: dict[str, Any] = {"setup_error": None, "started": None}
 # os.environ is shared by every thread of the driver: one worker start at a time edits it.
 _ENVIRON_LOCK = threading.Lock()
 
@@ -314,14 +331,19 @@ class _ThreadLimitedSpawnContext(multiprocessing.context.SpawnContext):
         return process
 
 
-def _init_local_worker(env, threads, worker_setup, setup_args) -> None:
+def _init_local_worker(env, threads, worker_setup, setup_args, started=None) -> None:
+    _LOCAL_WORKER["started"] = started  # a SimpleQueue of (pid, job number) when the driver records failures
     # Ctrl-C in a terminal reaches the whole process group: the driver alone handles it (it stops
     # the workers), instead of every worker printing a KeyboardInterrupt traceback.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _LOCAL_WORKER["setup_error"] = _prepare_worker(env, threads, worker_setup, setup_args)
 
 
-def _run_local_job(fn, item):
+def _run_local_job(fn, item, number: int | None = None):
+    if number is not None and _LOCAL_WORKER["started"] is not None:
+        # SimpleQueue.put writes to the pipe before it returns (mp.Queue's feeder thread may not,
+        # before a SIGKILL): the driver learns which job a worker that dies was running
+        _LOCAL_WORKER["started"].put((os.getpid(), number))
     return _run_job(fn, item, _LOCAL_WORKER["setup_error"])
 
 
@@ -430,7 +452,8 @@ class _RayWorker:
         return _run_job(self._fn, item, self._setup_error)
 
 
-def _map_ray(ray, fn, items, workers, address, env, threads, worker_setup, setup_args):
+def _map_ray(ray, fn, items, workers, address, env, threads, worker_setup, setup_args, record=False):
+    from mlsim.dataset.failures import JobFailed, failure_from_traceback
     connected_here = not ray.is_initialized()
     if connected_here:
         if address is None:
@@ -466,11 +489,22 @@ def _map_ray(ray, fn, items, workers, address, env, threads, worker_setup, setup
                     ok, payload, pid = ray.get(ref)
                 except ray.exceptions.RayError as exc:
                     # The actor died (killed, out of memory, crashed) or the result was lost.
-                    raise _job_error(fn, item, f"{type(exc).__name__} on Ray", str(exc)) from exc
-                if not ok:
+                    if not record:
+                        raise _job_error(fn, item, f"{type(exc).__name__} on Ray", str(exc)) from exc
+                    try:
+                        ray.kill(actor)
+                    except Exception:  # already dead
+                        pass
+                    actors.remove(actor)
+                    actor = actor_class.remote(fn, env, threads, worker_setup, setup_ref)  # a replacement
+                    actors.append(actor)
+                    submit(actor)
+                    yield item, JobFailed("killed", type(exc).__name__, f"its Ray actor died: {_last_line(str(exc))}")
+                    continue
+                if not ok and not record:
                     raise _job_error(fn, item, f"{_last_line(payload)} (Ray worker pid {pid})", payload)
                 submit(actor)
-                yield item, payload
+                yield item, (payload if ok else failure_from_traceback(payload))
         finished = True
     finally:
         if not finished:
