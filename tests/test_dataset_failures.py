@@ -127,3 +127,25 @@ def test_failure_records_name_the_signal_and_the_exception():
     assert gen.failures_line({"a": {"kind": "killed", "error_type": "SIGKILL", "message": "x"},
                               "b": {"kind": "error", "error_type": "SolverError", "message": "too deep"}}) == \
         "2 episodes failed: a (SIGKILL), b (SolverError: too deep)"
+
+
+def test_the_command_exits_1_naming_the_failed_episodes(tmp_path, monkeypatch, capsys):
+    """``mlsim dataset``: a run that stored every episode but the failed ones exits 1 with the failures'
+    line (a dataset with holes is not a success for a script that trains on it); a complete one exits 0."""
+    from mlsim import cli
+
+    spec_path = write_spec(tmp_path, samples_per_action=1, people=1, actions=["push", "pull"])
+    failed = {"push_00000": {"kind": "error", "error_type": "SolverError", "message": "step 3: no convergence"}}
+
+    outcome = {"failures": failed}
+
+    def fake(spec, base, out, **kw):
+        return {"episodes_stored": 1, "episodes_planned": 2, "episodes_run_now": 1, "episodes_wall_s": 1.0, "episodes_per_s": 1.0,
+                "precompute_s": 0.0, "episodes_failed": len(outcome["failures"]), "failures": outcome["failures"]}
+
+    monkeypatch.setattr(gen, "generate", fake)
+    assert cli.main(["dataset", str(spec_path), "--out", str(tmp_path / "ds"), "--quiet"]) == cli.EXIT_FAILURE
+    err = capsys.readouterr().err
+    assert "1 episode failed: push_00000 (SolverError: step 3: no convergence)" in err and "retry only them" in err
+    outcome["failures"] = {}
+    assert cli.main(["dataset", str(spec_path), "--out", str(tmp_path / "ds"), "--quiet"]) == cli.EXIT_OK
