@@ -3,8 +3,9 @@ failure as a value (:class:`JobFailed`), and the local pool that survives a work
 (issue 39: a dataset goes on past an episode that raises or whose process the out-of-memory killer
 ends).
 
-Standard library only, as :mod:`mlsim.dataset.executors` (whose internals it uses): the spawned
-workers must not import numpy before their thread limits are set.
+Standard library only, as :mod:`mlsim.dataset.workers` (the worker side it shares with
+:mod:`mlsim.dataset.executors`, which imports this module; this one never imports executors): the
+spawned workers must not import numpy before their thread limits are set.
 """
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
-from mlsim.dataset.executors import (_END, _LOCAL_JOBS_PER_WORKER, _POLL_S, _init_local_worker, _job_error, _last_line, _run_local_job,
-                                     _stop_local, _ThreadLimitedSpawnContext)
+from mlsim.dataset.workers import (END, LOCAL_JOBS_PER_WORKER, POLL_S, ThreadLimitedSpawnContext, init_local_worker, job_error, last_line,
+                                   run_local_job, stop_local)
 
 __all__ = ["JobFailed", "failure_from_traceback", "killed_failure", "map_local_recording"]
 
@@ -52,7 +53,7 @@ class JobFailed:
 
 def failure_from_traceback(payload: str) -> JobFailed:
     """A JobFailed from a worker's traceback text: its last line is "Type: message"."""
-    last = _last_line(payload)
+    last = last_line(payload)
     error_type, _, message = last.partition(": ")
     return JobFailed("error", error_type.rsplit(".", 1)[-1] or "Exception", message, payload)
 
@@ -82,30 +83,30 @@ def map_local_recording(fn, items, workers, env, threads, worker_setup, setup_ar
     retry: list[tuple[int, Any]] = []  # jobs a broken pool lost, run first in the next pool
     counter = 0
     while True:
-        context = _ThreadLimitedSpawnContext(env)
+        context = ThreadLimitedSpawnContext(env)
         started = context.SimpleQueue()
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_local_worker,
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=init_local_worker,
                                    initargs=(env, threads, worker_setup, setup_args, started))
         pending: dict = {}  # future -> (job number, item)
         lost: list[tuple[int, Any]] = []
 
         def top_up() -> None:
             nonlocal counter
-            while len(pending) < _LOCAL_JOBS_PER_WORKER * workers:
+            while len(pending) < LOCAL_JOBS_PER_WORKER * workers:
                 if retry:
                     number, item = retry.pop(0)
                 else:
-                    item = next(source, _END)
-                    if item is _END:
+                    item = next(source, END)
+                    if item is END:
                         return
                     number, counter = counter, counter + 1
-                pending[pool.submit(_run_local_job, fn, item, number)] = (number, item)
+                pending[pool.submit(run_local_job, fn, item, number)] = (number, item)
 
         finished = False
         try:
             top_up()
             while pending:
-                done, _ = wait(pending, timeout=_POLL_S, return_when=FIRST_COMPLETED)
+                done, _ = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
                 for future in done:
                     number, item = pending.pop(future)
                     try:
@@ -126,7 +127,7 @@ def map_local_recording(fn, items, workers, env, threads, worker_setup, setup_ar
             if finished:
                 pool.shutdown(wait=True)
             else:
-                _stop_local(pool, context)
+                stop_local(pool, context)
         if not lost:
             return
         runs: dict[int, int] = {}  # job number -> pid it started on
@@ -138,7 +139,7 @@ def map_local_recording(fn, items, workers, env, threads, worker_setup, setup_ar
         ran = [(number, item) for number, item in lost if number in runs]
         blamed = [(n, i) for n, i in ran if codes.get(runs[n]) not in (None, 0, -signal.SIGTERM)] or ran
         if not blamed:  # no job had started: the workers die on their own (a broken interpreter, setup)
-            raise _job_error(fn, lost[0][1], "the worker processes died before any job started", None)
+            raise job_error(fn, lost[0][1], "the worker processes died before any job started", None)
         for number, item in sorted(blamed, key=lambda pair: pair[0]):
             yield item, killed_failure(codes.get(runs[number]))
         blamed_numbers = {n for n, _ in blamed}
