@@ -30,12 +30,11 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from typing import Any
 
 from mlsim.dataset.failures import JobFailed, failure_from_traceback, map_local_recording
-from mlsim.dataset.workers import (END, LOCAL_JOBS_PER_WORKER, POLL_S, ThreadLimitedSpawnContext, init_local_worker, job_error, last_line,
-                                   prepare_worker, run_job, run_local_job, stop_local)
+from mlsim.dataset.workers import END, LOCAL_JOBS_PER_WORKER, POLL_S, job_error, last_line, local_pool, prepare_worker, run_job, run_local_job
 
 __all__ = ["EXECUTORS", "ON_FAILURE", "THREAD_ENV_VARS", "map_unordered", "thread_limit_env"]
 
@@ -201,25 +200,17 @@ def _check_positive_int(name: str, value) -> None:
 
 def _map_local(fn, items, workers, env, threads, worker_setup, setup_args) -> Iterator[tuple[Any, Any]]:
     # A generator inside a plain function: map_unordered validates when called, not when iterated.
-    context = ThreadLimitedSpawnContext(env)
-    pool = ProcessPoolExecutor(
-        max_workers=workers,
-        mp_context=context,
-        initializer=init_local_worker,
-        initargs=(env, threads, worker_setup, setup_args),
-    )
     source = iter(items)
     pending = {}  # future -> item
+    with local_pool(workers, env, threads, worker_setup, setup_args) as (pool, _, _):
 
-    def top_up() -> None:
-        while len(pending) < LOCAL_JOBS_PER_WORKER * workers:
-            item = next(source, END)
-            if item is END:
-                return
-            pending[pool.submit(run_local_job, fn, item)] = item
+        def top_up() -> None:
+            while len(pending) < LOCAL_JOBS_PER_WORKER * workers:
+                item = next(source, END)
+                if item is END:
+                    return
+                pending[pool.submit(run_local_job, fn, item)] = item
 
-    finished = False
-    try:
         top_up()
         while pending:
             done, _ = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
@@ -228,12 +219,6 @@ def _map_local(fn, items, workers, env, threads, worker_setup, setup_args) -> It
                 result = _local_result(fn, item, future)
                 top_up()
                 yield item, result
-        finished = True
-    finally:
-        if finished:
-            pool.shutdown(wait=True)
-        else:
-            stop_local(pool, context)
 
 
 def _local_result(fn, item, future):

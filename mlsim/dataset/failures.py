@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import signal
 from collections.abc import Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
-from mlsim.dataset.workers import (END, LOCAL_JOBS_PER_WORKER, POLL_S, ThreadLimitedSpawnContext, init_local_worker, job_error, last_line,
-                                   run_local_job, stop_local)
+from mlsim.dataset.workers import END, LOCAL_JOBS_PER_WORKER, POLL_S, job_error, last_line, local_pool, run_local_job
 
 __all__ = ["JobFailed", "failure_from_traceback", "killed_failure", "map_local_recording"]
 
@@ -83,27 +82,22 @@ def map_local_recording(fn, items, workers, env, threads, worker_setup, setup_ar
     retry: list[tuple[int, Any]] = []  # jobs a broken pool lost, run first in the next pool
     counter = 0
     while True:
-        context = ThreadLimitedSpawnContext(env)
-        started = context.SimpleQueue()
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=init_local_worker,
-                                   initargs=(env, threads, worker_setup, setup_args, started))
         pending: dict = {}  # future -> (job number, item)
         lost: list[tuple[int, Any]] = []
+        with local_pool(workers, env, threads, worker_setup, setup_args, report_starts=True) as (pool, context, started):
 
-        def top_up() -> None:
-            nonlocal counter
-            while len(pending) < LOCAL_JOBS_PER_WORKER * workers:
-                if retry:
-                    number, item = retry.pop(0)
-                else:
-                    item = next(source, END)
-                    if item is END:
-                        return
-                    number, counter = counter, counter + 1
-                pending[pool.submit(run_local_job, fn, item, number)] = (number, item)
+            def top_up() -> None:
+                nonlocal counter
+                while len(pending) < LOCAL_JOBS_PER_WORKER * workers:
+                    if retry:
+                        number, item = retry.pop(0)
+                    else:
+                        item = next(source, END)
+                        if item is END:
+                            return
+                        number, counter = counter, counter + 1
+                    pending[pool.submit(run_local_job, fn, item, number)] = (number, item)
 
-        finished = False
-        try:
             top_up()
             while pending:
                 done, _ = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
@@ -122,12 +116,6 @@ def map_local_recording(fn, items, workers, env, threads, worker_setup, setup_ar
                     yield item, (payload if ok else failure_from_traceback(payload))
                 if lost:  # the pool is broken: every pending future fails with it
                     lost += [pending.pop(f) for f in list(pending)]
-            finished = True
-        finally:
-            if finished:
-                pool.shutdown(wait=True)
-            else:
-                stop_local(pool, context)
         if not lost:
             return
         runs: dict[int, int] = {}  # job number -> pid it started on

@@ -1,6 +1,7 @@
 """The worker side of :func:`mlsim.dataset.executors.map_unordered`: what runs inside a worker process
-(thread limits, ``worker_setup``, one job), the spawn context that starts local workers with the
-thread limits already in their environment, stopping them, and the error that names a failed job.
+(thread limits, ``worker_setup``, one job), the local process pool whose spawned workers have the
+thread limits in their environment from their start (:func:`local_pool`, which also stops them), and
+the error that names a failed job.
 
 Its own module so that the two drivers of the local pool, :mod:`mlsim.dataset.executors` (a failure
 stops the map) and :mod:`mlsim.dataset.failures` (failures recorded, a broken pool replaced, issue
@@ -20,12 +21,13 @@ import threading
 import time
 import traceback
 from collections.abc import Mapping
+from contextlib import contextmanager
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing.connection import wait as wait_for_sentinels
 from typing import Any
 
-__all__ = ["END", "LOCAL_JOBS_PER_WORKER", "POLL_S", "ThreadLimitedSpawnContext", "init_local_worker", "job_error", "last_line",
-           "prepare_worker", "run_job", "run_local_job", "stop_local"]
+__all__ = ["END", "LOCAL_JOBS_PER_WORKER", "POLL_S", "ThreadLimitedSpawnContext", "job_error", "last_line", "local_pool", "prepare_worker",
+           "run_job", "run_local_job"]
 
 # How many jobs the local pool holds per worker: one running and one queued keeps every worker busy
 # while the driver handles a result, without pickling the whole item list into the pool up front.
@@ -117,7 +119,7 @@ def run_job(fn, item, setup_error: str | None) -> tuple[bool, Any, int]:
 
 # --- local process pool ------------------------------------------------------------------------
 
-# Per worker process: what init_local_worker found (the pool has no other place to keep it).
+# Per worker process: what _init_local_worker found (the pool has no other place to keep it).
 _LOCAL_WORKER: dict[str, Any] = {"setup_error": None, "started": None}
 # os.environ is shared by every thread of the driver: one worker start at a time edits it.
 _ENVIRON_LOCK = threading.Lock()
@@ -161,7 +163,7 @@ class ThreadLimitedSpawnContext(multiprocessing.context.SpawnContext):
         return process
 
 
-def init_local_worker(env, threads, worker_setup, setup_args, started=None) -> None:
+def _init_local_worker(env, threads, worker_setup, setup_args, started=None) -> None:
     """The local pool's initializer: ignore SIGINT, apply the thread limits, run ``worker_setup`` once.
 
     ``started``, when given, is a :class:`multiprocessing.SimpleQueue` on which :func:`run_local_job`
@@ -183,7 +185,33 @@ def run_local_job(fn, item, number: int | None = None) -> tuple[bool, Any, int]:
     return run_job(fn, item, _LOCAL_WORKER["setup_error"])
 
 
-def stop_local(pool: ProcessPoolExecutor, context: ThreadLimitedSpawnContext) -> None:
+@contextmanager
+def local_pool(workers: int, env: dict[str, str], threads: int, worker_setup, setup_args, report_starts: bool = False):
+    """A spawn-context process pool of thread-limited workers, stopped whichever way the block ends.
+
+    Yields ``(pool, context, started)``: the :class:`~concurrent.futures.ProcessPoolExecutor`, its
+    :class:`ThreadLimitedSpawnContext` (``context.started``: the processes, with their exit codes
+    once the pool is done) and, with ``report_starts``, the :class:`multiprocessing.SimpleQueue` on
+    which each worker puts ``(pid, job number)`` as a job starts (else ``None``). A block that ends
+    normally waits for the pool; one left by an exception, or by closing the generator it runs in
+    (a consumer that stops iterating), stops the workers at once (``_stop_local``).
+    """
+    context = ThreadLimitedSpawnContext(env)
+    started = context.SimpleQueue() if report_starts else None
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_local_worker,
+                               initargs=(env, threads, worker_setup, setup_args, started))
+    finished = False
+    try:
+        yield pool, context, started
+        finished = True
+    finally:
+        if finished:
+            pool.shutdown(wait=True)
+        else:
+            _stop_local(pool, context)
+
+
+def _stop_local(pool: ProcessPoolExecutor, context: ThreadLimitedSpawnContext) -> None:
     """Cancel the queued jobs and terminate the workers now, instead of waiting for running jobs.
 
     Terminate first, then shut down: the pool's manager thread sees its workers die, fails the
