@@ -282,6 +282,13 @@ def cmd_dataset(args) -> int:
     print(f"{summary['episodes_stored']}/{summary['episodes_planned']} episodes in {out} "
           f"({summary['episodes_run_now']} now in {summary['episodes_wall_s']} s, {summary['episodes_per_s']} episodes/s; "
           f"precompute {summary['precompute_s']} s)")
+    if summary.get("episodes_failed"):
+        # a dataset with holes is not a success for a script that trains on it: exit 1 with the list
+        from mlsim.dataset.generate import failures_line
+
+        print(f"{failures_line(summary['failures'])}; listed in {out / 'failures.json'}; rerun the same command to retry only them",
+              file=sys.stderr)
+        return EXIT_FAILURE
     return EXIT_OK
 
 

@@ -27,6 +27,13 @@ def write_card(out_dir: str | Path, spec, base, summary: dict) -> Path:
         f"- {summary['episodes_stored']} episodes: {len(spec.actions)} actions x {spec.samples_per_action} samples, "
         f"performed by {spec.people} simulated people (sample k of an action is person k mod {spec.people}).",
         "- Episodes per action: " + ", ".join(f"{a} {per_action.get(a, 0)}" for a in spec.actions) + ".",
+    ]
+    failures = summary.get("failures") or {}
+    if failures:  # an incomplete dataset: which episodes are missing and why (issue 39)
+        lines += [f"- **Incomplete: {len(failures)} of {summary['episodes_planned']} episodes failed** (rerun the same command to retry "
+                  f"only them; listed in `{store.FAILURES_NAME}`):"]
+        lines += [f"  - `{k}`: {v['kind']}, {v['error_type']}: {v['message'][:300]}" for k, v in sorted(failures.items())]
+    lines += [
         f"- Camera frames stored: {'yes' if spec.store_frames else 'no'}. Frame rate {base.camera.fps:g} FPS, "
         f"{base.camera.width_px} x {base.camera.height_px} px.",
         "",

@@ -17,28 +17,31 @@ them in the environment each worker process is started with, Ray puts them in th
 ``runtime_env``. Each worker then also calls ``torch.set_num_threads`` (if torch is installed) and
 ``threadpoolctl.threadpool_limits`` (if installed) for libraries that were loaded earlier.
 
-The module imports only the standard library: a spawned worker imports it (to unpickle the
-initializer) before the thread limits are applied, so it must not pull numpy in.
+The worker side (thread limits, the spawn context, running one job, stopping the pool) is in
+:mod:`mlsim.dataset.workers`, shared with :mod:`mlsim.dataset.failures` (``on_failure="record"``'s
+local pool). All three import only the standard library and each other: a spawned worker imports
+them before the thread limits are applied, so they must not pull numpy in.
 """
 
 from __future__ import annotations
 
 import logging
-import multiprocessing.context
 import os
-import signal
 import sys
-import threading
 import time
-import traceback
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from multiprocessing.connection import wait as wait_for_sentinels
+from concurrent.futures import FIRST_COMPLETED, wait
 from typing import Any
 
-__all__ = ["EXECUTORS", "THREAD_ENV_VARS", "map_unordered", "thread_limit_env"]
+from mlsim.dataset.failures import JobFailed, failure_from_traceback, map_local_recording
+from mlsim.dataset.workers import END, LOCAL_JOBS_PER_WORKER, POLL_S, job_error, last_line, local_pool, prepare_worker, run_job, run_local_job
+
+__all__ = ["EXECUTORS", "ON_FAILURE", "THREAD_ENV_VARS", "map_unordered", "thread_limit_env"]
 
 EXECUTORS = ("local", "ray")
+#: What :func:`map_unordered` does when a job raises or its worker dies: stop the whole map, or
+#: yield a :class:`mlsim.dataset.failures.JobFailed` for that item and go on with the others (issue 39).
+ON_FAILURE = ("raise", "record")
 
 THREAD_ENV_VARS = (
     "OMP_NUM_THREADS",
@@ -50,17 +53,6 @@ THREAD_ENV_VARS = (
     # of N workers N threads, N^2 on N cores. The kernels' sums do not depend on it (tested per kernel)
     "NUMBA_NUM_THREADS",
 )
-
-# How many jobs the local pool holds per worker: one running and one queued keeps every worker busy
-# while the driver handles a result, without pickling the whole item list into the pool up front.
-_LOCAL_JOBS_PER_WORKER = 2
-# The driver wakes this often while it waits, so a Ctrl-C is handled even when the signal lands on
-# another thread (a blocked lock wait in the main thread is only interrupted by its own signals).
-_POLL_S = 0.5
-# How long terminated workers get to exit before they are killed.
-_JOIN_S = 5.0
-
-_END = object()
 
 
 def thread_limit_env(threads_per_worker: int) -> dict[str, str]:
@@ -95,6 +87,7 @@ def map_unordered(
     worker_setup: Callable[..., Any] | None = None,
     setup_args: tuple = (),
     threads_per_worker: int = 1,
+    on_failure: str = "raise",
 ) -> Iterator[tuple[Any, Any]]:
     """Run ``fn(item)`` for every item on a pool of worker processes; yield pairs as jobs finish.
 
@@ -130,6 +123,13 @@ def map_unordered(
         object store).
     threads_per_worker : int
         Threads each worker's numerical libraries may use (OpenMP, BLAS, torch), >= 1.
+    on_failure : {"raise", "record"}
+        ``"raise"``: a failed job stops the map (below). ``"record"``: it is yielded as
+        ``(item, mlsim.dataset.failures.JobFailed(...))`` and the others go on. A local worker killed mid-job (a signal,
+        the out-of-memory killer) breaks the whole process pool: the job that ran in the dead worker
+        is yielded as ``kind="killed"`` with the signal, and the jobs the pool lost with it (running
+        in the workers the pool then terminated, or queued) are run again in a new pool. A Ray
+        actor that dies is replaced.
 
     Yields
     ------
@@ -169,6 +169,8 @@ def map_unordered(
     if executor not in EXECUTORS:
         raise ValueError(f'executor = {executor!r} is not an executor; choose one of: {", ".join(EXECUTORS)}')
     _check_positive_int("workers", workers)
+    if on_failure not in ON_FAILURE:
+        raise ValueError(f'on_failure = {on_failure!r}: choose one of: {", ".join(ON_FAILURE)}')
     env = thread_limit_env(threads_per_worker)
     if worker_setup is not None and not callable(worker_setup):
         raise TypeError(f"worker_setup = {worker_setup!r}: must be a callable or None")
@@ -179,6 +181,8 @@ def map_unordered(
             raise ValueError(
                 f'address = {address!r} is only for executor="ray": drop it, or pass executor="ray"'
             )
+        if on_failure == "record":
+            return map_local_recording(fn, items, workers, env, threads_per_worker, worker_setup, setup_args)
         return _map_local(fn, items, workers, env, threads_per_worker, worker_setup, setup_args)
     ray = _import_ray()
     if address is not None and ray.is_initialized():
@@ -186,7 +190,7 @@ def map_unordered(
             f"address = {address!r}: this process is already connected to Ray; pass address=None to "
             "use that connection, or call ray.shutdown() first"
         )
-    return _map_ray(ray, fn, items, workers, address, env, threads_per_worker, worker_setup, setup_args)
+    return _map_ray(ray, fn, items, workers, address, env, threads_per_worker, worker_setup, setup_args, on_failure == "record")
 
 
 def _check_positive_int(name: str, value) -> None:
@@ -194,172 +198,27 @@ def _check_positive_int(name: str, value) -> None:
         raise ValueError(f"{name} = {value!r}: must be an integer >= 1")
 
 
-def _item_label(item) -> str:
-    """How an error message names an item: its episode_id if it is a dict with one, else its repr."""
-    if isinstance(item, Mapping) and "episode_id" in item:
-        return f"episode_id={item['episode_id']!r}"
-    text = repr(item)
-    return text if len(text) <= 200 else text[:197] + "..."
-
-
-def _callable_name(fn) -> str:
-    return f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}"
-
-
-def _last_line(text: str) -> str:
-    """The last non-blank line of a traceback: the exception's type and message."""
-    lines = [line for line in text.splitlines() if line.strip()]
-    return lines[-1].strip() if lines else ""
-
-
-def _job_error(fn, item, detail: str, remote_traceback: str | None) -> RuntimeError:
-    message = f"job {_callable_name(fn)} failed for item {_item_label(item)}: {detail}"
-    if remote_traceback:
-        message += f"\n\nWorker traceback:\n{remote_traceback.rstrip()}"
-    return RuntimeError(message)
-
-
-# --- in the worker ------------------------------------------------------------------------------
-
-
-def _prepare_worker(env: dict[str, str], threads: int, worker_setup, setup_args) -> str | None:
-    """Apply the thread limits, then run ``worker_setup``; return its traceback text if it raised.
-
-    A failed setup is reported by the worker's first job, not raised here: a raising pool
-    initializer breaks the whole pool with an error that names neither the cause nor an item.
-    """
-    # Already in the environment the process started with; this covers a worker that was not
-    # started by us (and libraries, like numexpr, that read the variables at first use).
-    os.environ.update(env)
-    _limit_loaded_libraries(threads)
-    if worker_setup is None:
-        return None
-    try:
-        worker_setup(*setup_args)
-    except Exception:
-        where = f"worker_setup {_callable_name(worker_setup)} raised in worker pid {os.getpid()}"
-        return f"{where}:\n{traceback.format_exc()}"
-    return None
-
-
-def _limit_loaded_libraries(threads: int) -> None:
-    """Cap the thread pools of torch and of BLAS/OpenMP libraries that are already loaded."""
-    try:
-        import torch
-    except ImportError:
-        pass
-    else:
-        torch.set_num_threads(threads)
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return
-    # Process-wide and permanent: the returned object only matters to restore the old limits.
-    threadpool_limits(limits=threads)
-
-
-def _run_job(fn, item, setup_error: str | None) -> tuple[bool, Any, int]:
-    """``(True, fn(item), pid)``, or ``(False, traceback text, pid)`` if the job or setup raised."""
-    if setup_error is not None:
-        return False, setup_error, os.getpid()
-    try:
-        return True, fn(item), os.getpid()
-    except Exception:
-        return False, traceback.format_exc(), os.getpid()
-
-
-# --- local process pool ------------------------------------------------------------------------
-
-# Per worker process: what _init_local_worker found (the pool has no other place to keep it).
-_LOCAL_WORKER: dict[str, str | None] = {"setup_error": None}
-# os.environ is shared by every thread of the driver: one worker start at a time edits it.
-_ENVIRON_LOCK = threading.Lock()
-
-
-class _ThreadLimitedSpawnProcess(multiprocessing.context.SpawnProcess):
-    """A spawned process whose environment holds ``start_env`` from its first instruction on.
-
-    The environment of a spawned child is the parent's ``os.environ`` at the moment it is exec'd, and
-    the child imports the driver's ``__main__`` module (which may import numpy) before any
-    initializer runs: so the variables go into ``os.environ`` around ``start()`` and out again.
-    """
-
-    start_env: dict[str, str] = {}
-
-    def start(self):
-        with _ENVIRON_LOCK:
-            saved = {name: os.environ.get(name) for name in self.start_env}
-            os.environ.update(self.start_env)
-            try:
-                super().start()
-            finally:
-                for name, value in saved.items():
-                    if value is None:
-                        os.environ.pop(name, None)
-                    else:
-                        os.environ[name] = value
-
-
-class _ThreadLimitedSpawnContext(multiprocessing.context.SpawnContext):
-    """The spawn context, with processes started under ``env``; remembers them to stop them."""
-
-    def __init__(self, env: dict[str, str]):
-        self._env = dict(env)
-        self.started: list[_ThreadLimitedSpawnProcess] = []
-
-    def Process(self, *args, **kwargs):  # noqa: N802 (the multiprocessing context API)
-        process = _ThreadLimitedSpawnProcess(*args, **kwargs)
-        process.start_env = self._env
-        self.started.append(process)
-        return process
-
-
-def _init_local_worker(env, threads, worker_setup, setup_args) -> None:
-    # Ctrl-C in a terminal reaches the whole process group: the driver alone handles it (it stops
-    # the workers), instead of every worker printing a KeyboardInterrupt traceback.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _LOCAL_WORKER["setup_error"] = _prepare_worker(env, threads, worker_setup, setup_args)
-
-
-def _run_local_job(fn, item):
-    return _run_job(fn, item, _LOCAL_WORKER["setup_error"])
-
-
 def _map_local(fn, items, workers, env, threads, worker_setup, setup_args) -> Iterator[tuple[Any, Any]]:
     # A generator inside a plain function: map_unordered validates when called, not when iterated.
-    context = _ThreadLimitedSpawnContext(env)
-    pool = ProcessPoolExecutor(
-        max_workers=workers,
-        mp_context=context,
-        initializer=_init_local_worker,
-        initargs=(env, threads, worker_setup, setup_args),
-    )
     source = iter(items)
     pending = {}  # future -> item
+    with local_pool(workers, env, threads, worker_setup, setup_args) as (pool, _, _):
 
-    def top_up() -> None:
-        while len(pending) < _LOCAL_JOBS_PER_WORKER * workers:
-            item = next(source, _END)
-            if item is _END:
-                return
-            pending[pool.submit(_run_local_job, fn, item)] = item
+        def top_up() -> None:
+            while len(pending) < LOCAL_JOBS_PER_WORKER * workers:
+                item = next(source, END)
+                if item is END:
+                    return
+                pending[pool.submit(run_local_job, fn, item)] = item
 
-    finished = False
-    try:
         top_up()
         while pending:
-            done, _ = wait(pending, timeout=_POLL_S, return_when=FIRST_COMPLETED)
+            done, _ = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
             for future in done:
                 item = pending.pop(future)
                 result = _local_result(fn, item, future)
                 top_up()
                 yield item, result
-        finished = True
-    finally:
-        if finished:
-            pool.shutdown(wait=True)
-        else:
-            _stop_local(pool, context)
 
 
 def _local_result(fn, item, future):
@@ -369,40 +228,10 @@ def _local_result(fn, item, future):
         # The job never ran to completion in a live worker: the worker died (BrokenProcessPool), or
         # the item, fn or result could not be pickled.
         cause = exc.__cause__  # the pool's _RemoteTraceback, when there is one
-        raise _job_error(fn, item, f"{type(exc).__name__}: {exc}", str(cause) if cause else None) from exc
+        raise job_error(fn, item, f"{type(exc).__name__}: {exc}", str(cause) if cause else None) from exc
     if not ok:
-        raise _job_error(fn, item, f"{_last_line(payload)} (worker pid {pid})", payload)
+        raise job_error(fn, item, f"{last_line(payload)} (worker pid {pid})", payload)
     return payload
-
-
-def _stop_local(pool: ProcessPoolExecutor, context: _ThreadLimitedSpawnContext) -> None:
-    """Cancel the queued jobs and terminate the workers now, instead of waiting for running jobs.
-
-    Terminate first, then shut down: the pool's manager thread sees its workers die, fails the
-    queued futures and reaps the processes, and ``shutdown(wait=True)`` waits for that thread. (A
-    ``shutdown(wait=False)`` first would drop the pool's reference to the thread, and reaping from
-    two threads races: one of them sees a running process that is already gone.) Only processes
-    that have not exited are signalled, so no signal can reach a reaped, reused pid.
-    """
-    running = _still_running([process for process in context.started if process.pid is not None], 0.0)
-    for process in running:
-        process.terminate()
-    for process in _still_running(running, _JOIN_S):  # SIGTERM handled or ignored by a job
-        process.kill()
-    pool.shutdown(wait=True, cancel_futures=True)
-
-
-def _still_running(processes: list, timeout_s: float) -> list:
-    """The processes that have not exited after waiting up to timeout_s for all of them (no reaping)."""
-    deadline = time.monotonic() + timeout_s
-    running = list(processes)
-    while running:
-        left_s = max(0.0, deadline - time.monotonic())
-        exited = set(wait_for_sentinels([process.sentinel for process in running], left_s))
-        if not exited:
-            break
-        running = [process for process in running if process.sentinel not in exited]
-    return running
 
 
 # --- Ray ----------------------------------------------------------------------------------------
@@ -424,13 +253,13 @@ class _RayWorker:
 
     def __init__(self, fn, env, threads, worker_setup, setup_args):
         self._fn = fn
-        self._setup_error = _prepare_worker(env, threads, worker_setup, setup_args)
+        self._setup_error = prepare_worker(env, threads, worker_setup, setup_args)
 
     def run(self, item):
-        return _run_job(self._fn, item, self._setup_error)
+        return run_job(self._fn, item, self._setup_error)
 
 
-def _map_ray(ray, fn, items, workers, address, env, threads, worker_setup, setup_args):
+def _map_ray(ray, fn, items, workers, address, env, threads, worker_setup, setup_args, record=False):
     connected_here = not ray.is_initialized()
     if connected_here:
         if address is None:
@@ -452,25 +281,36 @@ def _map_ray(ray, fn, items, workers, address, env, threads, worker_setup, setup
         pending = {}  # object ref -> (actor, item)
 
         def submit(actor) -> None:
-            item = next(source, _END)
-            if item is not _END:
+            item = next(source, END)
+            if item is not END:
                 pending[actor.run.remote(item)] = (actor, item)
 
         for actor in actors:
             submit(actor)
         while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1, timeout=_POLL_S)
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=POLL_S)
             for ref in ready:
                 actor, item = pending.pop(ref)
                 try:
                     ok, payload, pid = ray.get(ref)
                 except ray.exceptions.RayError as exc:
                     # The actor died (killed, out of memory, crashed) or the result was lost.
-                    raise _job_error(fn, item, f"{type(exc).__name__} on Ray", str(exc)) from exc
-                if not ok:
-                    raise _job_error(fn, item, f"{_last_line(payload)} (Ray worker pid {pid})", payload)
+                    if not record:
+                        raise job_error(fn, item, f"{type(exc).__name__} on Ray", str(exc)) from exc
+                    try:
+                        ray.kill(actor)
+                    except Exception:  # already dead
+                        pass
+                    actors.remove(actor)
+                    actor = actor_class.remote(fn, env, threads, worker_setup, setup_ref)  # a replacement
+                    actors.append(actor)
+                    submit(actor)
+                    yield item, JobFailed("killed", type(exc).__name__, f"its Ray actor died: {last_line(str(exc))}")
+                    continue
+                if not ok and not record:
+                    raise job_error(fn, item, f"{last_line(payload)} (Ray worker pid {pid})", payload)
                 submit(actor)
-                yield item, payload
+                yield item, (payload if ok else failure_from_traceback(payload))
         finished = True
     finally:
         if not finished:

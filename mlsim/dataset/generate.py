@@ -11,7 +11,11 @@
    frame; cached on disk), then the workers run the episodes (:func:`run_episode_job`: the pipeline
    to the DLLM at the base scene's tiers, single-threaded), and the driver writes each episode as
    it arrives, atomically (:mod:`mlsim.dataset.store`), with a progress bar (rate and ETA);
-4. ``DIR/dataset.json`` (counts, timings, versions), once complete the per-frame features and labels
+4. an episode that raises (a refused load, a ``SolverError``) or whose worker process is killed (the
+   kernel's out-of-memory killer, any signal) is recorded in ``DIR/failures.json`` with its reason
+   (:func:`mlsim.dataset.store.write_failures`) and the others go on; nothing of it is stored, so
+   a rerun of the same command retries only the failed episodes and leaves the stored ones as they are;
+5. ``DIR/dataset.json`` (counts, timings, versions, the failures), once complete the per-frame features and labels
    as Parquet (``DIR/dllm_frames.parquet``, :mod:`mlsim.dataset.parquet`) and the dataset card ``DIR/README.md``.
 
 Same spec and seed, same features: the workers run one thread each (BLAS reductions keep their
@@ -37,7 +41,7 @@ from mlsim.io import atomic_bytes
 from mlsim.interactions import ACTION_TO_4, ACTIONS, InteractionSpec, Sample, draw_people, draw_sample, frame_labels, interaction_scene
 from mlsim.scene import Scene, scene_from_dict
 
-__all__ = ["plan_episodes", "run_episode_job", "generate", "CACHE_KEEP"]
+__all__ = ["plan_episodes", "run_episode_job", "generate", "failures_line", "CACHE_KEEP"]
 
 #: The stages a dataset keeps in the cache: the sensor's, shared by every episode (each episode's
 #: own intermediate results are not written to disk).
@@ -131,6 +135,18 @@ def run_episode_job(job: dict) -> dict:
 
 
 # ------------------------------------------------------------------------------------ the driver
+#: Episodes the driver tries to run the sensor's precomputes through before it leaves them to the workers.
+_PRECOMPUTE_TRIES = 3
+
+
+def failures_line(failures: dict[str, dict]) -> str:
+    """``"2 episodes failed: push_00001 (SolverError: ...), pull_00000 (killed: SIGKILL)"`` (the first five)."""
+    items = sorted(failures.items())
+    named = ", ".join(f"{k} ({v['error_type'] if v['kind'] == 'killed' else v['error_type'] + ': ' + v['message'][:120]})"
+                      for k, v in items[:5])
+    more = f" and {len(items) - 5} more" if len(items) > 5 else ""
+    return f"{len(items)} episode{'s' if len(items) != 1 else ''} failed: {named}{more}"
+
 def _machine() -> str:
     """The driver's hardware in words (the dataset card's throughput is of it and its workers)."""
     import os
@@ -149,6 +165,7 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
 
     from mlsim import pipeline
     from mlsim.dataset.executors import map_unordered
+    from mlsim.dataset.failures import JobFailed
 
     out = Path(out_dir)
     jobs, people = plan_episodes(spec)
@@ -161,24 +178,41 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     todo = [j for j in jobs if j["episode_id"] not in done]
     if limit is not None:
         todo = todo[: max(int(limit), 0)]
-    log(f"[dataset] {spec.name}: {len(jobs)} episodes, {len(done)} already stored, {len(todo)} to run on {workers} {executor} worker(s)")
+    earlier_failures = store.read_failures(out)
+    retried = sum(j["episode_id"] in earlier_failures for j in todo)
+    log(f"[dataset] {spec.name}: {len(jobs)} episodes, {len(done)} already stored, {len(todo)} to run"
+        + (f" ({retried} that failed before)" if retried else "") + f" on {workers} {executor} worker(s)")
     common = {"base_scene": base.model_dump(mode="json"), "interaction": spec.interaction.model_dump(mode="json"),
               "cache_dir": str(cache.root), "store_frames": spec.store_frames}
     t_start = time.perf_counter()
     precompute_s = 0.0
-    if todo:
-        # the sensor's precomputes once, here, so the workers load them instead of each building them
-        t0 = time.perf_counter()
-        pipeline.run(episode_scene(todo[0] | common), cache=cache, outputs=("dllm",), progress=False,
-                     log=lambda m: log(m) if "precomput" in m or "tracing" in m else None)
-        precompute_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    # the sensor's precomputes once, here, so the workers load them instead of each building them;
+    # through an episode, which may itself fail (its worker then records why): the next one is tried
+    for job in todo[:_PRECOMPUTE_TRIES]:
+        try:
+            pipeline.run(episode_scene(job | common), cache=cache, outputs=("dllm",), progress=False,
+                         log=lambda m: log(m) if "precomput" in m or "tracing" in m else None)
+            break
+        except Exception as exc:
+            log(f"[dataset] precomputing through {job['episode_id']} failed ({type(exc).__name__}: {exc}); trying the next episode")
+    precompute_s = time.perf_counter() - t0 if todo else 0.0
     t_run = time.perf_counter()
     bar = tqdm(total=len(jobs), initial=len(done), unit="episode", desc=f"dataset {spec.name}", disable=None if progress else True,
                smoothing=0.05)
     n_new = n_frames = 0
     worker_seconds = []
+    attempted = {j["episode_id"] for j in todo}
+    # the failures of earlier runs that this run does not retry (a --limit) stay recorded
+    failures = {k: v for k, v in earlier_failures.items() if k not in attempted}
     try:
-        for job, result in map_unordered(run_episode_job, (j | common for j in todo), executor=executor, workers=workers, address=address):
+        for job, result in map_unordered(run_episode_job, (j | common for j in todo), executor=executor, workers=workers, address=address,
+                                         on_failure="record"):
+            if isinstance(result, JobFailed):
+                failures[job["episode_id"]] = {"kind": result.kind, "error_type": result.error_type, "message": result.message[:2000]}
+                log(f"[dataset] episode {job['episode_id']} failed: {result.reason[:300]}")
+                bar.update(1)
+                continue
             store.write_episode(out, job["episode_id"], result["arrays"], result["attrs"])
             worker_seconds.append(result["attrs"]["seconds"])
             n_new += 1
@@ -186,6 +220,8 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
             bar.update(1)
     finally:
         bar.close()
+        failures = {k: v for k, v in failures.items() if k not in store.complete_episodes(out)}
+        store.write_failures(out, failures)  # also after a Ctrl-C: what failed so far stays recorded
     wall = time.perf_counter() - t_run
     stored = store.complete_episodes(out)
     summary = {
@@ -196,15 +232,19 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
         "frames_per_s": round(n_frames / wall, 1) if wall > 0 and n_new else None, "machine": _machine(),
         "worker_s_per_episode_median": round(float(np.median(worker_seconds)), 3) if worker_seconds else None,
         "total_wall_s": round(time.perf_counter() - t_start, 2), "spec_hash": spec.content_hash(), "mesh_key": attrs["mesh_key"],
-        "versions": attrs["versions"],
+        "versions": attrs["versions"], "episodes_failed": len(failures),
+        "failures": failures,  # episode id -> {"kind": "error" | "killed", "error_type", "message"}; a rerun retries them
     }
     atomic_bytes(out / "dataset.json", json.dumps(summary, indent=2).encode())
-    if summary["complete"]:
+    if summary["complete"] or failures:
         from mlsim.dataset.card import write_card
         from mlsim.dataset.parquet import export_parquet
 
-        export_parquet(out)  # the per-frame table for tools that read Parquet (issue 41)
-        write_card(out, spec, base, summary)
+        if summary["complete"]:
+            export_parquet(out)  # the per-frame table for tools that read Parquet (issue 41)
+        write_card(out, spec, base, summary)  # with failures: the card says which episodes are missing and why
     log(f"[dataset] {n_new} episodes in {wall:.1f} s ({summary['episodes_per_s']} episodes/s); {len(stored)}/{len(jobs)} stored in {out}")
+    if failures:
+        log(f"[dataset] {failures_line(failures)}; listed in {out / store.FAILURES_NAME}; rerun the same command to retry only them")
     return summary
 

@@ -25,9 +25,13 @@ from typing import Any
 import numpy as np
 
 __all__ = ["STORE_NAME", "EPISODE_ARRAYS", "create_or_open", "complete_episodes", "write_episode", "read_episode", "read_attrs",
-           "DatasetMismatch"]
+           "DatasetMismatch", "FAILURES_NAME", "read_failures", "write_failures"]
 
 STORE_NAME = "dataset.zarr"
+#: The episodes that raised or whose worker was killed in the last run, beside the store (issue 39):
+#: {episode id: {"kind", "error_type", "message"}}. A rerun retries them (they are not stored) and
+#: drops each that then succeeds; the file is removed once none is left.
+FAILURES_NAME = "failures.json"
 _PARTIAL = ".partial"
 
 #: The arrays of an episode: name -> (dtype, shape after the frame axis, unit and meaning).
@@ -109,6 +113,23 @@ def write_episode(out_dir: str | Path, episode_id: str, arrays: dict[str, np.nda
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
+
+
+def read_failures(out_dir: str | Path) -> dict[str, dict[str, str]]:
+    """The failed episodes recorded in ``out_dir`` ({} when none)."""
+    path = Path(out_dir) / FAILURES_NAME
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def write_failures(out_dir: str | Path, failures: dict[str, dict[str, str]]) -> None:
+    """Record the failed episodes (atomic: written whole, then renamed), or remove the file if none."""
+    from mlsim.io import atomic_bytes
+
+    path = Path(out_dir) / FAILURES_NAME
+    if failures:
+        atomic_bytes(path, json.dumps(dict(sorted(failures.items())), indent=2).encode())
+    else:
+        path.unlink(missing_ok=True)
 
 
 def read_attrs(out_dir: str | Path) -> dict[str, Any]:
