@@ -139,6 +139,12 @@ class _Problem:
         self._woodbury = ContactWoodbury(self.W[self.free])
         self.contact_solver, self.contact_max_iterations = contact_solver, contact_max_iterations
         self._condensed = None  # the condensed Newton's linearisation (CondensedBody), kept over steps
+        # linearise at each step's start before trying the kept linearisation: set once a step has needed a
+        # fresh linearisation and making one cost less than the failed try it saves (measured), cleared when a
+        # fresh one fails (path). A 2 x 12 mm rod pushed sideways by a frictionless sphere: every step past a third
+        # of its height failed on the first state's linearisation (13 iterations, 4-6 s) and converged in 2-7 on
+        # one made at its start (1-2 s); on the default demo a linearisation (9 s) costs more than such a try
+        self._fresh_first = False
         self.condensed_rtol = CONDENSED_RTOL
         self.admm_rtol = CONDENSED_ADMM_RTOL
         self.contact_iterations = 0
@@ -362,19 +368,36 @@ class _Problem:
         """Would the indenter at ``pose`` sink deeper than ``max_jump`` into the points where they are (tunnelling)?"""
         return -float(indenter_gap(self.shape, pose, self.points.X + state.u).min()) > self.max_jump_m
 
-    def path(self, x0, pose, pose_old, state, case, depth=8):
+    def path(self, x0, pose, pose_old, state, case, depth=8, guess=None):
         """:meth:`newton` from ``pose_old`` to ``pose``, halving the move on failure or tunnelling
-        (:func:`fem.continuation.solve_with_halving`)."""
+        (:func:`fem.continuation.solve_with_halving`). ``x0`` is the converged state at ``pose_old``;
+        ``guess``, if given, a starting iterate for the whole move only (an extrapolation): a half
+        starts from the state it continues, never from a guess made for the whole move (whose
+        rotations, on a rod bent far, can be far from a half's answer or invert elements)."""
         from fem.continuation import solve_with_halving
 
         def step(p_old, p, start, whole):
             x_start, st = start
-            guess = x_start
+            if whole and guess is not None:
+                x_start = guess
+            guess_n = x_start
+            if self.contact_solver == "admm" and self._fresh_first:
+                kept = self._condensed
+                try:
+                    self._condensed = CondensedBody(self, x_start)
+                    x, law, _ = self.condensed_step(x_start, p, p_old, st, case)
+                    return x, law
+                except (SolverError, FloatingPointError):
+                    self._fresh_first = False
+                finally:
+                    self._condensed = kept
             if self.contact_solver == "admm":
+                t_try = time.perf_counter()
                 try:
                     x, law, _ = self.condensed_step(x_start, p, p_old, st, case)
                     return x, law
                 except SolverError as exc:
+                    t_try = time.perf_counter() - t_try
                     # the kept linearisation does not carry this move (seen on the demo's release under a
                     # twisted, stuck probe; a rod bent far sideways): once more linearised where the first try
                     # came closest (else at the step's start), then the penalty Newton on the true tangent from
@@ -384,8 +407,11 @@ class _Problem:
                         kept = self._condensed
                         near = best[1] if best is not None and best[0] < 1.0 else x_start
                         try:
+                            t_lin = time.perf_counter()
                             self._condensed = CondensedBody(self, near)
+                            t_lin = time.perf_counter() - t_lin
                             x, law, _ = self.condensed_step(near, p, p_old, st, case)
+                            self._fresh_first = t_lin < t_try
                             return x, law
                         except SolverError as again:
                             other = getattr(again, "best", None)
@@ -397,9 +423,9 @@ class _Problem:
                         # stalled near the answer (the active set of a curved contact cycling between iterates,
                         # seen at relative residuals 1e-5 on a rod pushed sideways): Newton's quadratic tail
                         # from there costs a few iterations, from the step's start tens
-                        guess = best[1]
+                        guess_n = best[1]
                     self.fallbacks += 1
-            x, law, _ = self.newton(guess, p, p_old, st, case)
+            x, law, _ = self.newton(guess_n, p, p_old, st, case)
             return x, law
 
         def jumps(p, start):
@@ -768,11 +794,11 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
         elif state.force_target_n is None:
             pose = Pose(tuple(state.position_m), state.yaw_rad)
             move = np.array([*pose.position_m, pose.yaw_rad]) - np.array([*pose_old.position_m, pose_old.yaw_rad])
-            guess = x
+            guess = None
             if x_last is not None and np.allclose(move, last_move, rtol=1e-9, atol=1e-15) and np.any(move != 0):
                 guess = 2.0 * x - x_last  # the same motion as the last step: extrapolate the state
             x_before = x
-            x, law = problem.path(guess, pose, pose_old, pstate, case)
+            x, law = problem.path(x, pose, pose_old, pstate, case, guess=guess)
             x_last, last_move = x_before, move
         if state.force_target_n is not None:
             z_free = tip_z + 1e-4 + float(np.abs(pstate.u[:, 2]).max())

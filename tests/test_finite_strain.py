@@ -130,3 +130,52 @@ def test_condensed_newton_gives_the_penalty_newtons_answer_on_a_press(tiny_mesh)
     assert peak > 0.5
     np.testing.assert_allclose(condensed_ep.rod_force_n, penalty.rod_force_n, rtol=0, atol=0.01 * peak)
     assert condensed_ep.seconds["penalty_newton_steps"] == 0  # every step converged condensed
+
+
+class _LoggedSteps:
+    """A stand-in for :class:`fem.finite_strain._Problem` that records where each condensed step starts:
+    a move longer than 0.6 (in x) fails, a shorter one lands at the start plus the move."""
+
+    contact_solver, _fresh_first, _condensed, fallbacks, max_penetration_m, k_n = "admm", False, None, 0, 1.0, 1.0
+
+    def __init__(self):
+        self.starts = []
+
+    def condensed_step(self, x, pose, pose_old, state, case):
+        from fem.nonlinear import SolverError
+
+        move = pose.position_m[0] - pose_old.position_m[0]
+        self.starts.append((float(x[0]), pose_old.position_m[0]))
+        if move > 0.6:
+            raise SolverError(f"{case}: too far")
+        law = qs.condensed._Law(np.zeros((1, 3)), None, np.zeros(1), np.zeros(1, bool), np.zeros(1, bool), np.zeros((1, 3)))
+        return x + move, law, 1
+
+    def newton(self, x, pose, pose_old, state, case):
+        from fem.nonlinear import SolverError
+
+        raise SolverError(f"{case}: the penalty Newton is not under test")
+
+    def jumps(self, pose, state):
+        return False
+
+    def point_u(self, x):
+        return np.zeros((1, 3))
+
+
+def test_a_half_step_starts_from_the_state_it_continues_not_from_the_whole_moves_guess(monkeypatch):
+    """_Problem.path with an extrapolated ``guess``: the whole move may start there, each half starts from the
+    converged state at its own start (a guess made for the whole move, on a rod bent far, can be far from a
+    half's answer: every halving of a failed sideways push began from it and failed in turn)."""
+    from fem import finite_strain
+    from fem.condensed import PointState
+    from fem.indenters import Pose
+
+    monkeypatch.setattr(finite_strain, "CondensedBody", lambda problem, x: None)  # the re-linearisation: a no-op here
+    problem = _LoggedSteps()
+    x0, guess = np.array([0.0]), np.array([5.0])
+    state = PointState(np.zeros((1, 3)), np.zeros((1, 3)))
+    x, _ = finite_strain._Problem.path(problem, x0, Pose((1.0, 0.0, 0.0), 0.0), Pose((0.0, 0.0, 0.0), 0.0), state, "move", guess=guess)
+    # the whole move from the guess (twice: the kept and the re-made linearisation), then two halves chained
+    assert problem.starts == [(5.0, 0.0), (5.0, 0.0), (0.0, 0.0), (0.5, 0.5)]
+    assert x[0] == pytest.approx(1.0)
