@@ -42,7 +42,7 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 from scipy.special import ellipeinc, ellipkinc
 
-__all__ = ["cantilever_tip", "cantilever_inclined_end", "euler_load_clamped_free_n", "engesser_load_n"]
+__all__ = ["cantilever_tip", "cantilever_inclined_end", "centreline_under_point_load", "euler_load_clamped_free_n", "engesser_load_n"]
 
 
 def _alpha_of_tip_angle(theta0: float) -> tuple[float, float, float]:
@@ -112,6 +112,38 @@ def cantilever_inclined_end(alpha: float, phi_rad: float) -> tuple[float, float,
     c0 = brentq(lambda c: end(c)[1], lo, hi, xtol=1e-13, rtol=1e-13)
     y = end(c0)
     return float(y[2]), float(y[3]), float(y[0])
+
+
+def centreline_under_point_load(force_n: tuple[float, float], through_m: tuple[float, float], bending_stiffness_n_m2: float,
+                                 s_m: float, small_rotation: bool = False) -> tuple[float, float, float]:
+    """The centreline of a clamped rod (base at the origin, axis along z) at arc length ``s_m`` below a
+    point load ``force_n`` = (F_x, F_z) whose line of action passes through ``through_m`` = (A_x, A_z), by
+    integrating from the clamp.
+
+    Below the loaded section the bending moment about the centreline point X(s) is that of the load,
+    M(s) = F_x (A_z - z(s)) - F_z (A_x - x(s)), and E I theta' = M with x' = sin theta, z' = cos theta,
+    theta(0) = 0: an initial value problem, so neither the section where the load acts nor the rod above
+    it is needed (a frictionless contact on a rod's side acts along the common normal through the
+    indenter's axis, a point every step knows). ``small_rotation``: the moment from the undeformed
+    geometry, M(s) = F_x (A_z - s) - F_z A_x, and x'' = M / E I (the linear beam), for comparison.
+
+    Returns (x, z, theta) at s: m, m, rad. Euler's elastica as in [FrischFay1962]_, ch. 1.
+    """
+    fx, fz = (float(v) for v in force_n)
+    ax, az = (float(v) for v in through_m)
+    if not (np.isfinite(bending_stiffness_n_m2) and bending_stiffness_n_m2 > 0.0):
+        raise ValueError(f"bending_stiffness_n_m2 = {bending_stiffness_n_m2}: must be a finite E I > 0")
+    if not (np.isfinite(s_m) and s_m >= 0.0) or not np.all(np.isfinite([fx, fz, ax, az])):
+        raise ValueError(f"s_m = {s_m}, force_n = {force_n}, through_m = {through_m}: must be finite, s_m >= 0")
+
+    def rhs(s, y):
+        theta, x, z = y
+        if small_rotation:
+            return [(fx * (az - s) - fz * ax) / bending_stiffness_n_m2, theta, 1.0]
+        return [(fx * (az - z) - fz * (ax - x)) / bending_stiffness_n_m2, math.sin(theta), math.cos(theta)]
+
+    theta, x, z = solve_ivp(rhs, (0.0, s_m), [0.0, 0.0, 0.0], rtol=1e-10, atol=1e-14).y[:, -1]
+    return float(x), float(z), float(theta)
 
 
 def euler_load_clamped_free_n(bending_stiffness_n_m2: float, length_m: float) -> float:

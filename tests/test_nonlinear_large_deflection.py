@@ -18,7 +18,7 @@ from beam_helpers import buckling_load, square_beam
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-from fem.elastica import cantilever_inclined_end, cantilever_tip, engesser_load_n, euler_load_clamped_free_n
+from fem.elastica import cantilever_inclined_end, cantilever_tip, centreline_under_point_load, engesser_load_n, euler_load_clamped_free_n
 from fem.elasticity import assemble, solve_static
 from fem.materials.linear_elastic import lame_parameters
 from fem.nonlinear import solve_nonlinear
@@ -68,6 +68,23 @@ def test_the_elastica_closed_form():
         cantilever_tip(-1.0)
     with pytest.raises(ValueError, match="alpha = nan"):
         cantilever_tip(float("nan"))
+
+
+def test_the_centreline_below_a_point_load():
+    """fem.elastica.centreline_under_point_load, integrated from the clamp: a horizontal load through the
+    end's deformed height is Bisshopp and Drucker's cantilever; small-rotation, P L^3 / 3 E I; an axial
+    load alone leaves the rod straight; bad input refused."""
+    for alpha in (0.5, 2.0, 5.0):
+        delta, along, theta0 = cantilever_tip(alpha)
+        x, z, theta = centreline_under_point_load((alpha, 0.0), (delta, along), 1.0, 1.0)  # L = 1, E I = 1, P = alpha
+        assert (x, z) == pytest.approx((delta, along), abs=1e-7)
+        assert theta == pytest.approx(theta0, abs=1e-6)  # the end's rotation
+    assert centreline_under_point_load((0.3, 0.0), (0.0, 1.0), 1.0, 1.0, small_rotation=True)[0] == pytest.approx(0.1, rel=1e-9)
+    assert centreline_under_point_load((0.0, -0.5), (0.0, 1.0), 1.0, 1.0) == pytest.approx((0.0, 1.0, 0.0), abs=1e-12)
+    with pytest.raises(ValueError, match="bending_stiffness_n_m2 = 0"):
+        centreline_under_point_load((1.0, 0.0), (0.0, 1.0), 0.0, 1.0)
+    with pytest.raises(ValueError, match="s_m = nan"):
+        centreline_under_point_load((1.0, 0.0), (0.0, 1.0), 1.0, float("nan"))
 
 
 def test_the_inclined_end_load_elastica():
