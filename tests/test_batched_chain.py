@@ -28,7 +28,7 @@ import scipy.sparse as sp
 import torch
 
 from mlsim.camera import EXACT_POISSON_BELOW_E2, EXACT_POISSON_READ_NOISE_BELOW_E, CameraParams, capture
-from mlsim.camera_batched import (CameraConstants, capture_batched, channel_radiance_batched, demosaic_rggb_batched,
+from mlsim.camera_batched import (CameraConstants, capture_batched, capture_mono_batched, channel_radiance_batched, demosaic_rggb_batched,
                                   expose_batched)
 from mlsim.camera_batched import EXACT_POISSON_BELOW_E2 as B_E2, EXACT_POISSON_READ_NOISE_BELOW_E as B_READ
 from mlsim.emission import photon_rates
@@ -148,7 +148,7 @@ def test_poisson_thresholds_are_the_cpu_cameras():
 
 def test_demosaic_is_opencvs_bit_for_bit():
     rng = np.random.default_rng(0)
-    for shape in ((3, 9, 12), (2, 10, 7), (1, 350, 350)):
+    for shape in ((3, 9, 12), (2, 10, 7), (2, 8, 12), (1, 350, 350)):  # odd sizes: the general path; even: the planes
         raw = rng.integers(0, 256, shape, dtype=np.uint8)
         ref = np.stack([cv2.cvtColor(r, cv2.COLOR_BayerBG2RGB) for r in raw])
         assert np.array_equal(demosaic_rggb_batched(torch.from_numpy(raw)).numpy(), ref)
@@ -251,3 +251,27 @@ def test_camera_refuses_non_finite_radiance_naming_it():
     ch[..., 0] = float("inf")
     with pytest.raises(ValueError, match=r"channel_radiance \(episodes, frames, H, W, 3\) has 0 NaN and 64 infinite"):
         capture_batched(ch, c, noise=False)
+
+
+def test_the_fused_mono_path_and_the_chunking_give_the_same_bytes():
+    """capture_mono_batched (mono radiance straight to the mosaic, chunk by chunk) is
+    capture_batched of channel_radiance_batched, with and without the ambient leak and the noise,
+    whatever the chunking and the padding of shorter episodes."""
+    rng = np.random.default_rng(9)
+    p = CameraParams(gain_db=18.0, cos4_falloff=True, width_px=40, height_px=30)
+    c = CameraConstants.of(p)
+    rad = torch.from_numpy((rng.random((3, 5, 30, 40)) * 3e3 / p.electrons_per_radiance_m2_sr_s).astype(np.float32))
+    k = torch.tensor([0.3, 0.9, 0.4])
+    amb = torch.from_numpy((rng.random((30, 40)) * 1e3 / p.electrons_per_radiance_m2_sr_s).astype(np.float32))
+    level = torch.from_numpy(rng.choice([0.0, 0.4, 1.0], (3, 5)))
+    ka = torch.tensor([0.5, 0.5, 0.2])
+    n = [5, 3, 4]
+    for noise in (False, True):
+        for extra in ({}, {"ambient": amb, "level": level, "k_ambient": ka}):
+            gens = (lambda: [torch.Generator().manual_seed(s) for s in (1, 2, 3)]) if noise else (lambda: None)
+            ch = channel_radiance_batched(rad, k, extra.get("ambient"), extra.get("level"), extra.get("k_ambient"))
+            ref = capture_batched(ch, c, gens(), noise, n_frames=n if noise else None)
+            for chunk in (None, 2):
+                got = capture_mono_batched(rad, k, c, gens(), n_frames=n if noise else None, noise=noise, chunk_frames=chunk, **extra)
+                for b in range(3):
+                    assert np.array_equal(got[b, : n[b]].numpy(), ref[b, : n[b]].numpy()), (noise, bool(extra), chunk, b)

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from mlsim.camera_batched import CameraConstants, capture_batched, channel_radiance_batched
+from mlsim.camera_batched import CameraConstants, capture_mono_batched
 from mlsim.emission.batched import fraction_batched, merged_grids, photon_radiance_batched, von_mises_batched
 from mlsim.render.batched import transport_batched, transport_operator
 
@@ -104,7 +104,7 @@ class BatchedChain:
         if scene.fidelity.render.tier != "deformed":
             raise ValueError(f'fidelity.render.tier = "{scene.fidelity.render.tier}": the batched chain runs the deformed tier; '
                              'set fidelity.render.tier = "deformed" or run the episodes one by one')
-        res = pipeline.run(scene, cache=cache, outputs=("calibration",), progress=False, log=log)
+        res = pipeline.run(scene, cache=cache, outputs=("geometry", "mesh", "calibration"), progress=False, log=log)
         geometry, (mesh, _) = res.results["geometry"], res.results["mesh"]
         ctx = pipeline.RunContext(scene, cache, None, False, log)
         patches = patches_of(scene, geometry, mesh)
@@ -184,9 +184,11 @@ class BatchedChain:
                 lv[b, : self.n_idle] = self.ambient_level(self.windows(self.n_idle, -self.n_idle / self.fps))
                 lv[b, self.n_idle: self.n_idle + n] = self.ambient_level(self.windows(n))
             level = torch.as_tensor(lv, device=self.device)
-        ch = channel_radiance_batched(rad, self.k_ml, self.ambient, level, self.k_ambient)
-        gens = [torch.Generator(device=self.device).manual_seed(int(s)) for s in noise_seeds]
-        return capture_batched(ch, self.camera, gens, noise=noise)
+        gens = [torch.Generator(device=self.device).manual_seed(int(s)) for s in noise_seeds] if noise else None
+        # a CPU works a few frames at a time (the temporaries stay in its cache), a GPU all at once
+        chunk = 2 if self.device.type == "cpu" else None
+        return capture_mono_batched(rad, self.k_ml, self.camera, gens, [self.n_idle + n for n in n_frames] if noise else None, noise,
+                                    self.ambient, level, self.k_ambient, chunk_frames=chunk)
 
     def dllm(self, frames: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
         """DLLM events (B, F) and features (B, F, N, 3) of camera frames (B, n_idle + F, H, W, 3):
@@ -202,33 +204,50 @@ class BatchedChain:
 
     # ------------------------------------------------------------------------------------- run
     def run(self, episodes: list, noise_seeds: list, keep_radiance: bool = False, keep_frames: bool = False, noise: bool = True) -> ChainOutput:
-        """The chain for solved episodes (:class:`fem.episode.Episode`, one per noise seed)."""
-        import time
-
+        """The chain for solved episodes (:class:`fem.episode.Episode`, one per noise seed): the
+        direct light of each frame rasterised on its deformed sheet on the host."""
         from mlsim.render import deformed_vertices
 
         if len(episodes) != len(noise_seeds) or not episodes:
             raise ValueError(f"episodes ({len(episodes)}) and noise_seeds ({len(noise_seeds)}): one seed per episode, at least one")
+        tet = self.tet.cpu().numpy()
+
+        def direct(b, radiance_host):
+            return self.direct(radiance_host, deformed_vertices(episodes[b], self.vertices_m, self.located))
+
+        return self.run_arrays([ep.stress[:, :, tet] for ep in episodes], [ep.t_s for ep in episodes], noise_seeds, direct,
+                               keep_radiance, keep_frames, noise, [ep.n_frames for ep in episodes])
+
+    def run_arrays(self, stress_at_patches: list, t_s: list, noise_seeds: list, direct, keep_radiance: bool = False,
+                   keep_frames: bool = False, noise: bool = True, n_frames: list | None = None) -> ChainOutput:
+        """The chain from arrays: per episode its stress at the patches' tets (S_b, 6, N) float32 Pa
+        (``Episode.stress[:, :, tet]``), step times (S_b,) s and noise seed; ``direct(b, radiance)``
+        gives episode b's direct light (F_b, H, W) float32 on the host from its per-vertex radiance
+        (F_b, N) float32 (the rasteriser; or images computed before). ``n_frames``: frames per
+        episode (default: the stress's steps, as a solve whose every step is a frame)."""
+        import time
+
+        sync = torch.cuda.synchronize if self.device.type == "cuda" else (lambda: None)
+        n_frames = [len(s) for s in stress_at_patches] if n_frames is None else [int(n) for n in n_frames]
         sec = {}
         t0 = time.perf_counter()
-        tet = self.tet.cpu().numpy()
-        stress = [np.ascontiguousarray(ep.stress[:, :, tet]) for ep in episodes]
-        n_frames = [int(ep.n_frames) for ep in episodes]
-        radiance, _ = self.radiance(stress, [ep.t_s for ep in episodes], [self.windows(n) for n in n_frames])
+        radiance, _ = self.radiance(stress_at_patches, t_s, [self.windows(n) for n in n_frames])
         rad32 = radiance.to(torch.float32)
+        sync()
         sec["emission"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         host = rad32.cpu().numpy()
-        direct = np.zeros(tuple(rad32.shape[:2]) + (self.height_px, self.width_px), np.float32)
-        for b, ep in enumerate(episodes):
-            n = n_frames[b]
-            direct[b, :n] = self.direct(host[b, :n], deformed_vertices(ep, self.vertices_m, self.located))
+        lit = np.zeros(tuple(rad32.shape[:2]) + (self.height_px, self.width_px), np.float32)
+        for b, n in enumerate(n_frames):
+            lit[b, :n] = direct(b, host[b, :n])
         sec["raster"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        images = transport_batched(self.T, rad32, self.height_px, self.width_px, torch.as_tensor(direct, device=self.device))
+        images = transport_batched(self.T, rad32, self.height_px, self.width_px, torch.as_tensor(lit, device=self.device))
+        sync()
         sec["bounces"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         frames = self.frames(images, n_frames, noise_seeds, noise)
+        sync()
         sec["camera"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         events, feats = self.dllm(frames)
