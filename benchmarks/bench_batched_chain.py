@@ -2,14 +2,16 @@
 
     .venv/bin/python benchmarks/bench_batched_chain.py cpu [--spec scenes/interactions/paper.toml] [--episodes 4] [--rounds 3]
     .venv/bin/python benchmarks/bench_batched_chain.py export --out DIR [--episodes 2]
-    python3 benchmarks/bench_batched_chain.py gpu --inputs DIR --out OUT [--episodes 1000] [--batch 50]   # torch + numpy + opencv only
+    python3 benchmarks/bench_batched_chain.py gpu --inputs DIR --out OUT [--episodes 1000] [--batch 50] [--direct host|resident]
+        # needs torch, numpy, scipy and opencv only
     .venv/bin/python benchmarks/bench_batched_chain.py compare --inputs DIR --gpu OUT
 
 ``cpu``: the spec's first episodes solved (cached), then, in alternating rounds, the per-episode
 chain (each stage's own ``run`` after the solve: emission, render, camera, DLLM, the way
 ``bench_episode_stages.py`` times a stage alone) and the batched chain on the same episodes
 (``BatchedChain.run``, device cpu, one batch). Prints medians of frames per second over the
-rounds and the batched chain's seconds per part. Both sides use the process's default threads.
+rounds and the batched chain's seconds per part. Both sides on one thread per library, as a
+dataset worker runs (``mlsim.dataset.executors``).
 
 ``export``: what a GPU machine without the project's dependencies needs (no pydantic, Mitsuba,
 numba there): the sensor's arrays (bounces' matrix, patch areas, camera constants, the DLLM's
@@ -39,6 +41,13 @@ import platform
 import sys
 import time
 from pathlib import Path
+
+if __name__ == "__main__" and sys.argv[1:2] != ["gpu"]:
+    # a dataset worker's threads (mlsim.dataset.executors), before numpy and numba load: one per
+    # library. On this shared machine torch's two OpenMP threads cost about 8 ms per element-wise op
+    # on a frame (their wake-ups under the CPU quota), against 0.2 ms on one.
+    for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS", "NUMBA_NUM_THREADS"):
+        os.environ[_name] = "1"
 
 import numpy as np
 
@@ -81,6 +90,8 @@ def cpu(args) -> int:
 
     from mlsim.dataset.batched import BatchedChain
 
+    torch.set_num_threads(1)
+
     eps = _episodes(args.spec, args.episodes)
     scene0, res0, cache0 = eps[0]
     chain = BatchedChain.from_scene(scene0, res0.results["solve"], cache0)
@@ -113,8 +124,6 @@ def cpu(args) -> int:
 
 # --------------------------------------------------------------------------------------- export
 def export(args) -> int:
-    import torch
-
     from mlsim.dataset.batched import BatchedChain
     from mlsim.render import deformed_vertices
 
@@ -144,8 +153,7 @@ def export(args) -> int:
     for k, (scene, res, cache) in enumerate(eps):
         ep = res.results["solve"]
         stress = np.ascontiguousarray(ep.stress[:, :, used])
-        rad, _ = chain.radiance([stress[:, :, local]], [ep.t_s], [chain.windows(ep.n_frames)])
-        rad32 = rad.to(torch.float32)[0].numpy()
+        rad32 = chain.radiance([stress[:, :, local]], [ep.t_s], [chain.windows(ep.n_frames)])[0].numpy()
         direct = chain.direct(rad32, deformed_vertices(ep, chain.vertices_m, chain.located))
         np.savez_compressed(out / f"episode{k}.npz", stress=stress, t_s=ep.t_s, n_frames=np.array(ep.n_frames), direct=direct,
                             noise_seed=np.array(int(scene.noise_seed or 0)))
@@ -203,14 +211,23 @@ def gpu(args) -> int:
     chain, eps = _chain_from_export(Path(args.inputs), args.device)
     K = len(eps)
     info = {"device": args.device, "torch": torch.__version__, "episodes": args.episodes, "batch": args.batch, "exported_episodes": K,
+            "direct_light": args.direct,
             "frames_per_episode": [e["n"] for e in eps], "idle_frames_per_episode": chain.n_idle}
     if dev.type == "cuda":
         info["gpu"] = torch.cuda.get_device_name(dev)
 
+    resident = [torch.as_tensor(e["direct"], device=dev) for e in eps] if args.direct == "resident" else None
+
     def batch(idx, noise=True, keep=False, ch=chain):
         e = [eps[i % K] for i in idx]
+        if resident is not None and ch is chain:
+            def direct(b, _rad):
+                return resident[idx[b] % K]
+        else:
+            def direct(b, _rad):
+                return e[b]["direct"]
         return ch.run_arrays([x["stress"] for x in e], [x["t_s"] for x in e], [x["seed"] + 7919 * (i // K) for x, i in zip(e, idx)],
-                             lambda b, _rad: e[b]["direct"], keep_radiance=keep, keep_frames=keep, noise=noise, n_frames=[x["n"] for x in e])
+                             direct, keep_radiance=keep, keep_frames=keep, noise=noise, n_frames=[x["n"] for x in e])
 
     t0 = time.perf_counter()
     batch(list(range(min(args.batch, args.episodes))))  # warm-up: kernels, cuSPARSE handles, the allocator's pool
@@ -229,7 +246,11 @@ def gpu(args) -> int:
                 ms_per_frame_by_part={k: 1e3 * v / frames for k, v in parts.items()})
     if dev.type == "cuda":
         info["max_memory_gib"] = torch.cuda.max_memory_allocated(dev) / 2**30
-    print(json.dumps({k: info[k] for k in ("frames", "seconds", "frames_per_s", "ms_per_frame_by_part")}), flush=True)
+    print(json.dumps({k: info[k] for k in ("direct_light", "batch", "frames", "seconds", "frames_per_s", "ms_per_frame_by_part")}), flush=True)
+    name = "batched_chain_gpu.json" if args.direct == "host" else f"batched_chain_gpu_{args.direct}_b{args.batch}.json"
+    if args.no_agreement:
+        (out / name).write_text(json.dumps(info, indent=2))
+        return 0
     # agreement with the same torch functions on this machine's CPU, on the exported episodes
     cpu_chain, _ = _chain_from_export(Path(args.inputs), "cpu")
     idx = list(range(K))
@@ -247,9 +268,11 @@ def gpu(args) -> int:
     agree["noisy_frame_std_dn"] = {"device": float(np.mean([f.std() for f in g_n.frames])), "cpu": float(np.mean([f.std() for f in c_n.frames]))}
     agree["noisy_events"] = {"device": int(sum(e.sum() for e in g_n.events)), "cpu": int(sum(e.sum() for e in c_n.events))}
     info["agreement_with_this_machines_cpu"] = agree
-    (out / "batched_chain_gpu.json").write_text(json.dumps(info, indent=2))
-    np.savez_compressed(out / "gpu_outputs.npz", **{f"radiance{k}": r for k, r in enumerate(g_nl.radiance)},
-                        **{f"noiseless{k}": f for k, f in enumerate(g_nl.frames)},
+    (out / name).write_text(json.dumps(info, indent=2))
+    # one file per exported episode's radiance (a file comes back from the device machine up to 16 MiB)
+    for k, r in enumerate(g_nl.radiance):
+        np.savez_compressed(out / f"gpu_radiance{k}.npz", radiance=r)
+    np.savez_compressed(out / "gpu_outputs.npz", **{f"noiseless{k}": f for k, f in enumerate(g_nl.frames)},
                         **{f"events{k}": e for k, e in enumerate(g_n.events)}, **{f"features{k}": f for k, f in enumerate(g_n.features)},
                         **{f"frame_mean{k}": m for k, m in enumerate(gm)}, seeds=np.array([eps[i % K]["seed"] + 7919 * (i // K) for i in seeds_idx]))
     print(json.dumps(agree, indent=1))
@@ -283,7 +306,7 @@ def compare(args) -> int:
         fire = (z_cpu[..., 0] > 0) & (z_gpu[0][..., 0] > 0)
         rows.append({
             "episode": k, "frames": len(rad),
-            "radiance_max_abs_diff_over_max": _rel(g[f"radiance{k}"], rad),
+            "radiance_max_abs_diff_over_max": _rel(np.load(Path(args.gpu) / f"gpu_radiance{k}.npz")["radiance"], rad),
             "noiseless_bytes_differing": int((gf != nl.frames).sum()), "noiseless_bytes": int(gf.size),
             "noiseless_max_abs_diff_dn": int(np.abs(gf.astype(int) - nl.frames.astype(int)).max()),
             "noisy_frame_mean_dn_gpu_minus_cpu": float((g_means.mean(axis=0) - c_mean).mean()),
@@ -310,6 +333,10 @@ def main(argv=None) -> int:
         p.add_argument("--gpu", default="out/batched_chain")
         p.add_argument("--batch", type=int, default=50)
         p.add_argument("--device", default="cuda")
+        p.add_argument("--direct", choices=("host", "resident"), default="host",
+                       help="gpu: the direct light copied from the host each batch (as the rasteriser gives it), or resident on the device "
+                            "(the device chain's own rate)")
+        p.add_argument("--no-agreement", action="store_true", help="gpu: time only")
     args = ap.parse_args(argv)
     return {"cpu": cpu, "export": export, "gpu": gpu, "compare": compare}[args.mode or "cpu"](args)
 

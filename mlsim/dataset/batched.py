@@ -11,7 +11,7 @@ a GPU (``device=``), through the pure torch functions of each stage:
    rest shape's matrix for all frames of all episodes, added to the direct light that the numba
    rasteriser draws on each frame's deformed sheet on the host
    (:meth:`mlsim.render.direct_raster.DirectRaster.images`; the direct part depends on each
-   frame's own geometry, so there is nothing to batch in it: see ``docs/stages/batched-chain.md``
+   frame's own geometry, so there is nothing to batch in it: see ``docs/uses/datasets.md`` (the batched chain)
    for the measured split);
 3. camera (:mod:`mlsim.camera_batched`): the DLLM's idle frames before each episode (SPEC 1.6)
    and its frames, photon transfer, noise from one seeded ``torch.Generator`` per episode, ADC,
@@ -144,21 +144,30 @@ class BatchedChain:
 
         return exposure_windows_s(n_frames, self.fps, self.exposure_s) + start_s
 
-    def radiance(self, stress_at_patches: list, t_s: list, windows_s: list) -> tuple[torch.Tensor, object]:
-        """Per-vertex radiance (B, F, N) float64 on the device of each episode's stress at the
-        patches' tets (S_b, 6, N) Pa, its step times (S_b,) and windows (F_b, 2)."""
-        grids = merged_grids(t_s, windows_s, self.device)
-        S = max(len(s) for s in stress_at_patches)
-        N = stress_at_patches[0].shape[2]
-        stress = torch.empty((len(stress_at_patches), S, 6, N), dtype=torch.float32, device=self.device)
-        for b, s in enumerate(stress_at_patches):
-            st = torch.as_tensor(np.asarray(s), device=self.device)
-            stress[b, : len(s)] = st
-            stress[b, len(s):] = st[-1]  # padded steps repeat the last (never read past the merged grid)
-        sigma = von_mises_batched(stress, torch.arange(N, device=self.device))
+    def radiance(self, stress_at_patches: list, t_s: list, windows_s: list) -> torch.Tensor:
+        """Per-vertex radiance (B, F, N) float32 on the device (computed in float64, rounded as the
+        render rounds it) of each episode's stress at the patches' tets (S_b, 6, N) Pa, its step
+        times (S_b,) and windows (F_b, 2); zero on an episode's padded frames."""
+        B, N = len(stress_at_patches), stress_at_patches[0].shape[2]
+        out = torch.zeros((B, max(len(w) for w in windows_s), N), dtype=torch.float32, device=self.device)
+        # a CPU works episode by episode (its temporaries then stay small enough for the allocator to
+        # reuse, instead of fresh pages for every operation on a batch), a GPU on the whole batch
+        step = 1 if self.device.type == "cpu" else B
         p = self.params
-        fraction, _ = fraction_batched(sigma, grids, self.model, p.detrapping_per_pa, getattr(p, "recovery_time_s", 1.0))
-        return photon_radiance_batched(fraction, grids, self.area, self.brightness, self.scale), grids
+        for b0 in range(0, B, step):
+            part = slice(b0, min(B, b0 + step))
+            grids = merged_grids(t_s[part], windows_s[part], self.device)
+            group = stress_at_patches[part]
+            S = max(len(s) for s in group)
+            stress = torch.empty((len(group), S, 6, N), dtype=torch.float32, device=self.device)
+            for b, s in enumerate(group):
+                st = torch.as_tensor(np.asarray(s), device=self.device)
+                stress[b, : len(s)] = st
+                stress[b, len(s):] = st[-1]  # padded steps repeat the last (never read past the merged grid)
+            fraction, _ = fraction_batched(von_mises_batched(stress), grids, self.model, p.detrapping_per_pa, getattr(p, "recovery_time_s", 1.0))
+            rad = photon_radiance_batched(fraction, grids, self.area, self.brightness, self.scale)
+            out[part, : rad.shape[1]] = rad.to(torch.float32)
+        return out
 
     def direct(self, radiance: np.ndarray, vertices_m: np.ndarray) -> np.ndarray:
         """Direct light (F, H, W) float32 of one episode on the host: the numba rasteriser on its lit
@@ -231,18 +240,28 @@ class BatchedChain:
         n_frames = [len(s) for s in stress_at_patches] if n_frames is None else [int(n) for n in n_frames]
         sec = {}
         t0 = time.perf_counter()
-        radiance, _ = self.radiance(stress_at_patches, t_s, [self.windows(n) for n in n_frames])
-        rad32 = radiance.to(torch.float32)
+        rad32 = self.radiance(stress_at_patches, t_s, [self.windows(n) for n in n_frames])
         sync()
         sec["emission"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         host = rad32.cpu().numpy()
-        lit = np.zeros(tuple(rad32.shape[:2]) + (self.height_px, self.width_px), np.float32)
+        shape = tuple(rad32.shape[:2]) + (self.height_px, self.width_px)
+        lit = None
+        on_device = {}
         for b, n in enumerate(n_frames):
-            lit[b, :n] = direct(b, host[b, :n])
+            d = direct(b, host[b, :n])
+            if isinstance(d, torch.Tensor):  # already on the device (a benchmark's resident images)
+                on_device[b] = d
+            else:
+                lit = np.zeros(shape, np.float32) if lit is None else lit
+                lit[b, :n] = d
         sec["raster"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        images = transport_batched(self.T, rad32, self.height_px, self.width_px, torch.as_tensor(lit, device=self.device))
+        # the host's direct light goes over in one copy
+        lit_t = torch.zeros(shape, dtype=torch.float32, device=self.device) if lit is None else torch.as_tensor(lit, device=self.device)
+        for b, d in on_device.items():
+            lit_t[b, : n_frames[b]] = d
+        images = transport_batched(self.T, rad32, self.height_px, self.width_px, lit_t)
         sync()
         sec["bounces"] = time.perf_counter() - t0
         t0 = time.perf_counter()

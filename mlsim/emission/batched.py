@@ -101,13 +101,14 @@ def merged_grids(t_s: list, windows_s: list, device="cpu") -> MergedGrids:
     return MergedGrids(*(torch.from_numpy(a).to(device) for a in (times, lo, hi, w, ranges, frames, length)))
 
 
-def von_mises_batched(stress: torch.Tensor, tet: torch.Tensor) -> torch.Tensor:
+def von_mises_batched(stress: torch.Tensor, tet: torch.Tensor | None = None) -> torch.Tensor:
     """sqrt(3 J2) (B, S, N) float64 Pa of the Voigt stress (B, S, 6, T) Pa (xx, yy, zz, yz, xz, xy) at
-    the tets ``tet`` (N,) int64: :func:`mlsim.emission.kernels.von_mises_at` of each episode, the same
-    float64 operations in the same order ([Hill1950] in :mod:`mlsim.emission.equivalent_stress`)."""
+    the tets ``tet`` (N,) int64 (None: every tet, the stress already gathered at the patches):
+    :func:`mlsim.emission.kernels.von_mises_at` of each episode, the same float64 operations in the
+    same order ([Hill1950] in :mod:`mlsim.emission.equivalent_stress`)."""
     if stress.ndim != 4 or stress.shape[2] != 6:
         raise ValueError(f"stress of shape {tuple(stress.shape)}: must be (episodes, steps, 6, tets)")
-    s = stress.index_select(3, tet).to(torch.float64)
+    s = (stress if tet is None else stress.index_select(3, tet)).to(torch.float64)
     xx, yy, zz, yz, xz, xy = s.unbind(2)
     a, b, c = xx - yy, yy - zz, zz - xx
     return torch.sqrt(0.5 * (a * a + b * b + c * c) + 3.0 * (yz * yz + xz * xz + xy * xy))

@@ -10,7 +10,7 @@ the CPU (numba, :func:`mlsim.render.kernels.csr_times_dense`).
 The deformed tier's direct light is not linear in anything a batch shares: it is rasterised on
 each frame's own deformed sheet (:mod:`mlsim.render.direct_raster`, a z-buffer in numba). It enters
 here as images (``direct``), computed by that rasteriser, to which the bounces are added; the
-measured split of the costs is in ``docs/stages/batched-chain.md`` (the raster is most of the
+measured split of the costs is in ``docs/uses/datasets.md``, "The batched chain" (the raster is most of the
 render, and stays per frame on the CPU).
 
 Agreement with :meth:`TransportMatrix.apply` (``tests/test_batched_chain.py``): both sum float32
