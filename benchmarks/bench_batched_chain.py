@@ -282,7 +282,7 @@ def gpu(args) -> int:
 # -------------------------------------------------------------------------------------- compare
 def compare(args) -> int:
     """The per-episode chain here against the GPU's outputs, on the exported episodes."""
-    d, g = Path(args.inputs), np.load(Path(args.gpu) / "gpu_outputs.npz")
+    g = np.load(Path(args.gpu) / "gpu_outputs.npz")
     info = json.loads((Path(args.gpu) / "batched_chain_gpu.json").read_text())
     K = info["exported_episodes"]
     eps = _episodes(args.spec, K)

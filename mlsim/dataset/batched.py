@@ -35,6 +35,7 @@ features agree in distribution, not in bytes (``tests/test_batched_chain.py``,
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import torch
@@ -88,12 +89,11 @@ class BatchedChain:
         """The sensor's parts of ``scene`` (deformed render tier) from the pipeline's cache (built
         there if missing): patches, the bounces' matrix and the raster, the camera, the DLLM's
         calibration. ``first_episode``: a solved episode of the sensor (its mesh locates the sheet)."""
-        from dllm.batched import taxel_index
         from dllm.detector import DllmParams
+        from dllm.features import taxel_index
         from dllm.stage import _calibration_of
         from fem.mesh import locate_points
         from mlsim import emission, pipeline
-        from mlsim.camera import CameraParams  # noqa: F401  (the camera's parameters come through camera_params)
         from mlsim.materials import phosphor_relative_brightness
         from mlsim.render import ambient as ambient_mod
         from mlsim.render.optics import camera_params, channel_factors_of, ml_channel_factors
@@ -119,22 +119,21 @@ class BatchedChain:
                              "run the episodes one by one for the others")
         scale = float(scene.material("ml_layer").relative_ml_peak.value) * float(phosphor_relative_brightness(scene.sensor.phosphor.loading_wt_pct))
         params = camera_params(scene)
-        amb = level = None
+        amb = level_of = None
         k_amb = np.zeros(3, np.float32)
         if scene.ambient.lamp != "none":
             amb = _ambient_image(scene, patches, sheet, transport, raster)[0]
             a = scene.ambient
             sd = ambient_mod.leaked_photon_sd(a.lamp, scene.optics.absorber, scene.sensor.layers.absorber_mm)
             k_amb = channel_factors_of(scene, sd).astype(np.float32)
-
-            def level(windows):
-                return ambient_mod.lamp_level(windows, a.flicker_hz, a.flicker_depth, a.switch_on_s, a.switch_off_s)
+            level_of = partial(ambient_mod.lamp_level, flicker_hz=a.flicker_hz, flicker_depth=a.flicker_depth, switch_on_s=a.switch_on_s,
+                               switch_off_s=a.switch_off_s)
         cal, _ = _calibration_of(scene, res.results["calibration"].rgb)
         dp = DllmParams.from_scene(scene)
         return cls(tet=patches.tet, area_m2=patches.area_m2, vertices_m=patches.vertices_m, located=located, model=spec.model,
                    params=m.params_from(spec), brightness=spec.brightness_photons_per_m2, scale=scale, fps=scene.camera.fps,
                    exposure_s=scene.camera.exposure_ms * 1e-3, transport=transport, raster=raster, camera=CameraConstants.of(params),
-                   k_ml=ml_channel_factors(scene), ambient=amb, ambient_level=level, k_ambient=k_amb, taxels=taxel_index(cal),
+                   k_ml=ml_channel_factors(scene), ambient=amb, ambient_level=level_of, k_ambient=k_amb, taxels=taxel_index(cal),
                    dllm_params=dp, n_idle=dp.init_frames, device=device)
 
     # ----------------------------------------------------------------------------------- parts
