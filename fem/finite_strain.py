@@ -364,6 +364,20 @@ class _Problem:
         self.max_stalled_residual = max(self.max_stalled_residual, best[0])
         return best[1], best[2]
 
+    def contact_start(self) -> tuple:
+        """Where the kept linearisation's contact solve starts (its ADMM warm start, or a fresh one's before
+        the episode's first condensed step), for :meth:`restart_contact`."""
+        from fem.contact_admm import WarmStart
+
+        return (self._condensed.warm if self._condensed is not None else WarmStart()).starting_point()
+
+    def restart_contact(self, start: tuple) -> None:
+        """Start the next condensed step's contact solve from ``start`` (:meth:`contact_start`): force control's
+        trial heights each from the step's own, not from the trial before, so that the answer does not
+        depend on the order the search tries heights in (as in the linear tiers, fem.quasistatic)."""
+        if self._condensed is not None:
+            self._condensed.warm.restart_from(start)
+
     def jumps(self, pose, state) -> bool:
         """Would the indenter at ``pose`` sink deeper than ``max_jump`` into the points where they are (tunnelling)?"""
         return -float(indenter_gap(self.shape, pose, self.points.X + state.u).min()) > self.max_jump_m
@@ -802,8 +816,10 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
             x_last, last_move = x_before, move
         if state.force_target_n is not None:
             z_free = tip_z + 1e-4 + float(np.abs(pstate.u[:, 2]).max())
+            contact_start = problem.contact_start()
 
             def at_z(z, x_start=x):
+                problem.restart_contact(contact_start)
                 p = Pose((state.position_m[0], state.position_m[1], z), state.yaw_rad)
                 xz, lz = problem.path(x_start, p, pose_old, pstate, case, depth=0 if dynamic else 8)
                 return condensed.normal_force(lz), (xz, lz, p)

@@ -179,3 +179,20 @@ def test_a_half_step_starts_from_the_state_it_continues_not_from_the_whole_moves
     # the whole move from the guess (twice: the kept and the re-made linearisation), then two halves chained
     assert problem.starts == [(5.0, 0.0), (5.0, 0.0), (0.0, 0.0), (0.5, 0.5)]
     assert x[0] == pytest.approx(1.0)
+
+
+def test_force_control_on_the_nonlinear_tier_is_the_press_to_the_height_it_found(tiny_mesh):
+    """A flat probe ramped to 0.4 N on the four tips (frictionless, so the answer is path-free): every frame
+    carries its target to the search's tolerance (1e-6), and a displacement-controlled press to the final
+    height gives that force. (Each trial height starts its contact solve from the step's own warm start,
+    _Problem.restart_contact; this press converges either way, so it checks the answer, not the order.)"""
+    scene0, _, mesh, _ = tiny_mesh
+    force = run_nonlinear_episode(_scene(scene0, [{"kind": "press", "force_n": 0.4, "duration_s": 0.1}]), mesh)
+    frames = force.frame_step[1:]  # (the first frame is the start, before the ramp: no target)
+    targets = force.force_target_n[frames]
+    assert np.all(np.isfinite(targets)) and targets[-1] == pytest.approx(0.4)
+    np.testing.assert_allclose(force.normal_force_n[frames], targets, rtol=1e-5, atol=1e-6)
+    depth_mm = (force.pose[0, 2] - force.pose[-1, 2]) * 1e3
+    assert 0.5 < depth_mm < 0.6  # past the 0.5 mm gap onto the tips
+    press = run_nonlinear_episode(_scene(scene0, [{"kind": "press", "depth_mm": depth_mm, "speed_mm_s": depth_mm / 0.1}]), mesh)
+    assert press.normal_force_n[-1] == pytest.approx(0.4, rel=1e-3)
