@@ -85,6 +85,9 @@ CONDENSED_POLISH_FROM = 1e-2
 # imbalance of 1e-4 of the load, far below every tier's stated error; counted in the episode's timings)
 CONDENSED_STALL_ACCEPT = 1e-4
 CONDENSED_STALL_AFTER = 6
+# after a step that needed a fresh linearisation (and where making one cost less than the failed try), the
+# next steps linearise at their start first (_Problem._fresh_first)
+RELINEARISE_AT_START = True
 
 
 def _with_best(exc: SolverError, best) -> SolverError:
@@ -395,7 +398,7 @@ class _Problem:
             if whole and guess is not None:
                 x_start = guess
             guess_n = x_start
-            if self.contact_solver == "admm" and self._fresh_first:
+            if self.contact_solver == "admm" and self._fresh_first and RELINEARISE_AT_START:
                 kept = self._condensed
                 try:
                     self._condensed = CondensedBody(self, x_start)
@@ -774,8 +777,8 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
     comp_fixed = dof_components(body.d.u)[body.fixed]
     # gravity alone first (the state before the indenter arrives), as a dead load: in one step (the rods' own
     # weight strains them by about 1e-4), by the condensed Newton where it is the method (its linearisation at
-    # the unloaded body is the one the episode keeps: no factorisation of its own; the tiny scene 20.4 -> 15.0 s on a shared machine),
-    # else by the penalty Newton, else in 4 increments
+    # the unloaded body is the one the episode keeps: no factorisation of its own; the tiny scene 20.4 ->
+    # 15.0 s on a shared machine), else by the penalty Newton, else in 4 increments
     x = np.zeros(body.n_dofs)
     state = trajectory.initial_state(load, tip_z)
     pose_old = Pose(tuple(state.position_m), state.yaw_rad)
