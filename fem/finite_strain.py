@@ -367,6 +367,19 @@ class _Problem:
         self.max_stalled_residual = max(self.max_stalled_residual, best[0])
         return best[1], best[2]
 
+    def _step_linearised_at(self, x_lin, pose, pose_old, state, case) -> tuple:
+        """:meth:`condensed_step` from ``x_lin`` on the body linearised there, the kept linearisation left as
+        it was; returns (x, law, seconds the linearisation took) or raises."""
+        kept = self._condensed
+        try:
+            seconds = time.perf_counter()
+            self._condensed = CondensedBody(self, x_lin)
+            seconds = time.perf_counter() - seconds
+            x, law, _ = self.condensed_step(x_lin, pose, pose_old, state, case)
+            return x, law, seconds
+        finally:
+            self._condensed = kept
+
     def contact_start(self) -> tuple:
         """Where the kept linearisation's contact solve starts (its ADMM warm start, or a fresh one's before
         the episode's first condensed step), for :meth:`restart_contact`."""
@@ -399,15 +412,11 @@ class _Problem:
                 x_start = guess
             guess_n = x_start
             if self.contact_solver == "admm" and self._fresh_first and RELINEARISE_AT_START:
-                kept = self._condensed
                 try:
-                    self._condensed = CondensedBody(self, x_start)
-                    x, law, _ = self.condensed_step(x_start, p, p_old, st, case)
+                    x, law, _ = self._step_linearised_at(x_start, p, p_old, st, case)
                     return x, law
                 except (SolverError, FloatingPointError):
                     self._fresh_first = False
-                finally:
-                    self._condensed = kept
             if self.contact_solver == "admm":
                 t_try = time.perf_counter()
                 try:
@@ -421,21 +430,15 @@ class _Problem:
                     # the closest iterate, then halves
                     best = getattr(exc, "best", None)
                     if whole:
-                        kept = self._condensed
                         near = best[1] if best is not None and best[0] < 1.0 else x_start
                         try:
-                            t_lin = time.perf_counter()
-                            self._condensed = CondensedBody(self, near)
-                            t_lin = time.perf_counter() - t_lin
-                            x, law, _ = self.condensed_step(near, p, p_old, st, case)
+                            x, law, t_lin = self._step_linearised_at(near, p, p_old, st, case)
                             self._fresh_first = t_lin < t_try
                             return x, law
                         except SolverError as again:
                             other = getattr(again, "best", None)
                             if other is not None and (best is None or other[0] < best[0]):
                                 best = other
-                        finally:
-                            self._condensed = kept
                     if best is not None and best[0] < CONDENSED_POLISH_FROM:
                         # stalled near the answer (the active set of a curved contact cycling between iterates,
                         # seen at relative residuals 1e-5 on a rod pushed sideways): Newton's quadratic tail
