@@ -56,7 +56,7 @@ from fem.indenters import Pose
 from fem.indenters import gap as indenter_gap
 from fem.nonlinear import SolverError, residual_and_tangent
 
-__all__ = ["run_nonlinear_episode", "centroid_fields", "rod_first_mode_rad_s", "dynamics_step_problems"]
+__all__ = ["run_nonlinear_episode", "centroid_fields", "rod_first_mode_rad_s", "dynamics_substeps", "dynamics_step_problems"]
 
 # Newton directions by GMRES on the tangent, preconditioned by an earlier factorised body tangent with
 # the current contact tangent taken exactly (ContactWoodbury): to this true relative residual (an inexact
@@ -647,6 +647,15 @@ def rod_first_mode_rad_s(scene) -> float:
     return dynamics.cantilever_first_mode_rad_s(bending, per_length, g.rod_height_m)
 
 
+def dynamics_substeps(scene) -> int:
+    """The least ``fidelity.solve.substeps`` at which the nonlinear tier's dynamics resolve the rods'
+    first bending mode (:func:`rod_first_mode_rad_s`) with ``fidelity.solve.steps_per_period`` steps a
+    period, at the camera's frame rate: ceil(steps_per_period / (fps T_1))."""
+    period = 2.0 * np.pi / rod_first_mode_rad_s(scene)
+    # the 1e-9 keeps a step of exactly T_1 / steps_per_period (up to rounding) accepted
+    return max(1, int(np.ceil(scene.fidelity.solve.steps_per_period / (scene.camera.fps * period) * (1.0 - 1e-9))))
+
+
 def dynamics_step_problems(scene) -> list[tuple]:
     """[(field, value, fix)] of a scene whose nonlinear dynamics cannot run: a layer without a density,
     or a step (1 / (fps x substeps)) longer than the rods' first bending period over
@@ -660,9 +669,9 @@ def dynamics_step_problems(scene) -> list[tuple]:
                  "fidelity.solve.dynamics needs every layer's density (materials.NAME.density_kg_m3)")]
     period = 2.0 * np.pi / rod_first_mode_rad_s(scene)
     dt = 1.0 / (scene.camera.fps * f.substeps)
-    if dt <= period / f.steps_per_period * (1.0 + 1e-9):
+    need = dynamics_substeps(scene)
+    if f.substeps >= need:
         return []
-    need = int(np.ceil(f.substeps * dt * f.steps_per_period / period))
     return [("fidelity.solve.substeps", f.substeps,
              f"a {dt * 1e3:.3g} ms step cannot resolve the rods' first bending mode ({1.0 / period:.0f} Hz, {period * 1e3:.3g} ms; "
              f"fidelity.solve.steps_per_period = {f.steps_per_period:g}): set substeps to {need} or more, or dynamics to \"quasi_static\"")]

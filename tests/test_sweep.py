@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from fem.finite_strain import rod_first_mode_rad_s
 from mlsim.scene import SceneError, load_scene
 from mlsim.sweep import metrics
 from mlsim.sweep.report import pareto_front
@@ -237,11 +238,13 @@ def test_a_load_the_fast_tier_refuses_is_answered_by_the_nonlinear_tier(tmp_path
     With --escalate-tier none the refusal is recorded with its reason."""
     from mlsim.sweep.run import Load
 
-    base = load_scene(TINY).with_values({"fidelity.solve.small_strain_limit": 0.001, "fidelity.solve.gravity": False})
+    # one step per period of the rods' first mode (323 Hz) keeps the escalated dynamics cheap: 11 steps a frame
+    base = load_scene(TINY).with_values({"fidelity.solve.small_strain_limit": 0.001, "fidelity.solve.gravity": False,
+                                         "fidelity.solve.steps_per_period": 1.0})
     # a flat probe over one rod: every vertex of its tip touches (a small sphere can fall between the coarse
     # mesh's vertices), and few contact points make the nonlinear solve cheap
     press = Load("small_press", {"indenter": {"shape": "flat", "diameter_mm": 6.0}, "start_xy_mm": [3.6, 3.6], "start_gap_mm": 0.1,
-                                 "segments": [{"kind": "press", "depth_mm": 0.2, "speed_mm_s": 6.0}]}, {})
+                                 "segments": [{"kind": "press", "depth_mm": 0.2, "speed_mm_s": 20.0}]}, {})
     varies = parse_vary(["sensor.rod.height_mm=9"])
     kw = dict(loads=[press], wanted=("tear",), cache_dir=cache.root, progress=False, log=lambda m: None)
     sweep(base, varies, tmp_path / "up", **kw)
@@ -250,7 +253,11 @@ def test_a_load_the_fast_tier_refuses_is_answered_by_the_nonlinear_tier(tmp_path
     assert r["ok"], r.get("reason")
     assert r["solve_tier"] == "nonlinear" and r["escalated"]["from_tier"] == "linear"
     assert "OutOfRangeError" in r["escalated"]["reason"] and "small_strain_limit" in r["escalated"]["reason"]
-    assert "small_press: nonlinear<linear/" in (tmp_path / "up" / "sweep.csv").read_text()
+    # stepped with backward-Euler dynamics at the least substeps that give the first bending mode a step per period
+    period_s = 2.0 * np.pi / rod_first_mode_rad_s(base)
+    esc = r["escalated"]
+    assert esc["dynamics"] == "backward_euler" and esc["substeps"] == int(np.ceil(1.0 / (base.camera.fps * period_s)))
+    assert "small_press: nonlinear+be<linear/" in (tmp_path / "up" / "sweep.csv").read_text()
     # the linear tier's answer where it is allowed to give one
     sweep(base.with_values({"fidelity.solve.small_strain_limit": 0.5}), varies, tmp_path / "lin", **kw)
     (lin,) = stored_records(tmp_path / "lin").values()

@@ -53,8 +53,9 @@ def rows(records: list[dict], varies, load_names: list[str]) -> list[dict]:
             row[f"{name}_tears"] = r.get("tears")
             row[f"{name}_force_err_est"] = r.get("solve_error_estimate")  # the linear tiers' own estimate (fem.quasistatic)
             # which tier answered each load; "nonlinear<linear": the linear tier refused it as beyond its model
-            # (mlsim.errors.OutOfRangeError) and the nonlinear tier answered
-            solved = r.get("solve_tier") + (f"<{r['escalated']['from_tier']}" if r.get("escalated") else "")
+            # (mlsim.errors.OutOfRangeError) and the nonlinear tier answered (with backward-Euler dynamics: "+be")
+            esc = r.get("escalated") or {}
+            solved = r.get("solve_tier") + ("+be" if esc.get("dynamics") == "backward_euler" else "") + (f"<{esc['from_tier']}" if esc else "")
             row["tiers"] = ", ".join(filter(None, [row.get("tiers"), f"{name}: {solved}/{r.get('render_tier', '-')}"]))
             sf = r.get("safety_factor_strain") or r.get("safety_factor_stress")
             if _num(sf):
@@ -142,7 +143,7 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
            "tensile strength / peak stress); tear_risk: 1 / the smallest safety factor over the loads; tears: a safety factor below 1 "
            "under any load (the press is the design load). min_valley: the "
            "calibration frame's darkest gap between neighbouring disks (0 merged, 1 black). beam_strain_per_n: SPEC 1.3's "
-           "cantilever sensitivity 4 L / (pi r^3 E). tiers: solve/render per load (nonlinear<linear: the linear tier refused the load as beyond its model, the nonlinear tier answered it); force_err_est: the linear tiers' own estimate of "
+           "cantilever sensitivity 4 L / (pi r^3 E). tiers: solve/render per load (nonlinear+be<linear: the linear tier refused the load as beyond its model, the nonlinear tier answered it with backward-Euler dynamics); force_err_est: the linear tiers' own estimate of "
            "their per-rod contact force error from the rods' bending (fem.quasistatic; none with second-order rod kinematics, "
            "which carry that term); the deformed render tier is within 1 % per rod of path tracing (`mlsim accuracy --stage render`)."]
     files.append(out / "sweep.md")

@@ -35,7 +35,7 @@ from mlsim.io import atomic_bytes
 from mlsim.sweep import metrics
 from mlsim.sweep.variants import Variant, Vary
 
-__all__ = ["Load", "read_load", "SCENES", "DEFAULT_LOADS", "DEFAULT_DIRECTION", "DEFAULT_ANGLES", "METRICS", "run_variant_job", "variant_record", "sweep",
+__all__ = ["Load", "read_load", "escalated_scene", "SCENES", "DEFAULT_LOADS", "DEFAULT_DIRECTION", "DEFAULT_ANGLES", "METRICS", "run_variant_job", "variant_record", "sweep",
            "stored_records"]
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
@@ -45,8 +45,9 @@ DEFAULT_ANGLES = (0.0, 45.0, 90.0)
 #: what a sweep can measure; each costs its own stages (``--metrics``)
 METRICS = ("brightness", "tear", "separation", "direction")
 #: the tier that answers a load the variant's fast tier refuses as beyond its model (rods near buckling in
-#: the swipe over 10.5-12 mm heights and 3-4 mm diameters): the quasi-static nonlinear tier, whose equilibria
-#: hold there (no limit point below the Euler load; tests/test_nonlinear_large_deflection.py)
+#: the swipe over 10.5-12 mm heights and 3-4 mm diameters): the nonlinear tier with backward-Euler dynamics
+#: (:func:`escalated_scene`): a quasi-static Newton has no unique answer where a rod buckles under the rim or
+#: snaps back behind it (the 10.5 mm swipe, quasi-static, still halved its step 11 after 15 min)
 ESCALATE_TO = "nonlinear"
 #: the fields of ``fidelity.solve`` a load file carries along (how the load must be stepped)
 LOAD_SOLVE_FIELDS = ("substeps", "rod_kinematics")
@@ -95,6 +96,20 @@ def _stage_record(res) -> dict:
     return {"actions": {s.stage.name: s.action for s in res.steps}, "seconds": {k: round(v, 3) for k, v in res.seconds.items()}}
 
 
+def escalated_scene(scene, tier: str):
+    """The scene as the escalation ``tier`` solves it. The nonlinear tier steps it with backward-Euler
+    dynamics (the elastomer's inertia and loss factor; :mod:`fem.dynamics`) at the least substeps that
+    resolve the rods' first bending mode (:func:`fem.finite_strain.dynamics_substeps`; the scene's own if
+    finer): the rods that buckle under the probe's rim and snap back behind it have an answer, and the
+    snap-back's stress history (hence its light) is followed. The load and contact are the scene's."""
+    if tier != "nonlinear":
+        return scene.with_values({"fidelity.solve.tier": tier})
+    from fem.finite_strain import dynamics_substeps
+
+    substeps = max(scene.fidelity.solve.substeps, dynamics_substeps(scene))  # of the scene's rods and camera, whatever its tier
+    return scene.with_values({"fidelity.solve.tier": tier, "fidelity.solve.dynamics": "backward_euler", "fidelity.solve.substeps": substeps})
+
+
 def _load_metrics(scene, load: Load, cache_dir, wanted, escalate_to: str | None = ESCALATE_TO) -> dict:
     """One load on one variant: brightness (camera) and tear risk (solve). A load the variant's fast
     tier refuses as beyond its model (:class:`mlsim.errors.OutOfRangeError`) is solved again by
@@ -117,7 +132,8 @@ def _load_metrics(scene, load: Load, cache_dir, wanted, escalate_to: str | None 
         if escalate_to is None or s.fidelity.solve.tier == escalate_to:
             raise
         escalated = {"from_tier": s.fidelity.solve.tier, "reason": _reason(exc)}
-        s = s.with_values({"fidelity.solve.tier": escalate_to})
+        s = escalated_scene(s, escalate_to)
+        escalated.update(dynamics=s.fidelity.solve.dynamics, substeps=s.fidelity.solve.substeps)
         res = _run(s, cache_dir, outputs)
     ep = res.results["solve"]
     out = {"ok": True, **_stage_record(res), "escalated": escalated}
