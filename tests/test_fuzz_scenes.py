@@ -25,10 +25,13 @@ from mlsim.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 # a shipped scene of each sensor kind (the ml_rod_array's default demo: every stage, a full load)
+# and, for the sibling kinds' plausibility (other_sensors/<kind>/plausibility.py), the scenes whose
+# sections the first leaves at their defaults: the balance loops, two feet, the point-dipole skin
 KIND_SCENES = {"ml_rod_array": "scenes/mavig_default.toml", "cls": "scenes/cls/general.toml", "plantar_sole": "scenes/sole/obstacles.toml",
-               "anyskin": "scenes/anyskin/push_study.toml"}
+               "anyskin": "scenes/anyskin/push_study.toml", "plantar_sole/balance": "scenes/sole/balance_sweep.toml",
+               "plantar_sole/double_support": "scenes/sole/double_support.toml", "anyskin/point_dipole": "scenes/anyskin/headon_push.toml"}
 CORPUS = ROOT / "tests" / "data" / "fuzz_corpus.json"
-FAST_DRAWS = 300  # about 20 s on 2 shared cores
+FAST_DRAWS = 600  # about 11 s on 2 shared cores (7 scenes: ml_rod_array about 86 of them)
 SLOW_DRAWS = 3000
 
 SPECIAL = [0, 0.0, -0.0, -1, -1.0, 1e-300, 5e-324, 1e-9, 1e-3, 0.5, 1.0, 2, 3.7, 100, 1e6, 1e9, 1e300, 1.7976931348623157e308,
