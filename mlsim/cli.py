@@ -61,6 +61,10 @@ def cmd_check(args) -> int:
         print(f"{key:<{width}} = {value!r:<24} {unit}".rstrip())
     if scene.kind != "ml_rod_array":
         print(f"\n# sensor kind {scene.kind!r}: outputs {', '.join(outputs_of(scene.kind))}")
+        from mlsim.plausibility import warnings  # plausible but expensive (issue 39): the kind's own estimate
+
+        for line in warnings(scene):
+            print(f"warning: {line}")
         return EXIT_OK
     g = RodArray.from_sensor(scene.sensor)
     print("\n# derived")

@@ -21,6 +21,10 @@ the limit and the fix:
 
 :func:`warnings` lists what is plausible but expensive, with the estimate (printed by ``mlsim check``).
 
+The other sensor kinds judge their own scenes (``other_sensors/<kind>/plausibility.py``, through the
+kind's ``check`` and ``warnings`` hooks, :class:`mlsim.stage.SensorKind`) against the same memory
+limits, through :func:`memory_problem` and :func:`cost_warnings`.
+
 Force-controlled presses have no depth before the solve: a force ramp is taken to leave the
 indenter at the rod tips (the least it can reach), so a later depth-controlled press is judged
 from there, and the check never refuses a load that could be valid.
@@ -34,7 +38,7 @@ from mlsim import cost_model
 from mlsim.errors import Problem
 
 __all__ = ["MAX_EPISODE_FRAMES", "MAX_SOLVE_STEPS", "MAX_RUN_MEMORY_GB", "WARN_RUN_MEMORY_GB", "WARN_RUN_SECONDS", "problems", "warnings",
-           "press_reach", "slide_limit_mm", "footprint_radius_mm"]
+           "press_reach", "slide_limit_mm", "footprint_radius_mm", "memory_problem", "cost_warnings"]
 
 # 10 minutes of camera at 30 FPS: 18,000 frames. The longest shipped episode is a few seconds and a
 # dataset's are under 3 s; at the reduced tier's 2.8 ms a frame a 10-minute episode solves in a minute,
@@ -202,9 +206,35 @@ def problems(scene) -> list[Problem]:
     return _memory_problems(scene, run_costs(scene))
 
 
+def memory_problem(field: str, value, what: str, memory_bytes: float, fix: str) -> tuple | None:
+    """``(field, value, reason)`` when ``what`` (a phrase naming the work and its size) would need more
+    than ``MAX_RUN_MEMORY_GB``; ``fix`` says what to change. None when it fits (a NaN estimate does not)."""
+    if memory_bytes <= MAX_RUN_MEMORY_GB * cost_model.GB:
+        return None
+    return (field, value, f"{what} would need about {memory_bytes / cost_model.GB:.3g} GB; the limit is {MAX_RUN_MEMORY_GB:g} GB "
+                          f"(mlsim.plausibility.MAX_RUN_MEMORY_GB): {fix}")
+
+
+def cost_warnings(what: str, memory_bytes: float, seconds: float) -> list[str]:
+    """The warnings of work that is plausible but expensive: past ``WARN_RUN_MEMORY_GB`` or
+    ``WARN_RUN_SECONDS``, each with its estimate."""
+    out = []
+    if memory_bytes > WARN_RUN_MEMORY_GB * cost_model.GB:
+        out.append(f"{what}: about {memory_bytes / cost_model.GB:.3g} GB expected")
+    if seconds > WARN_RUN_SECONDS:
+        out.append(f"{what}: about {seconds / 60:.3g} min expected")
+    return out
+
+
 def warnings(scene) -> list[str]:
-    """What is plausible but expensive, with the estimate (empty for a scene that is cheap)."""
-    if scene.kind != "ml_rod_array" or problems(scene):
+    """What is plausible but expensive, with the estimate (empty for a scene that is cheap); another
+    kind's come from its registered ``warnings`` hook."""
+    if scene.kind != "ml_rod_array":
+        from mlsim.stage import kind
+
+        hook = kind(scene.kind).warnings
+        return hook(scene) if hook is not None else []
+    if problems(scene):
         return []
     out = []
     for c in run_costs(scene):

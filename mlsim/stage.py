@@ -56,12 +56,14 @@ class Stage:
 class SensorKind:
     """A sensor kind: its name (``sensor.kind``), the pydantic model of its ``[sensor]`` section, its
     stages (each after the stages it needs) and an optional ``check(scene) -> [(field, value,
-    reason)]`` of the scene's consistency beyond the schema (run by ``mlsim check`` and on load)."""
+    reason)]`` of the scene's consistency beyond the schema (run by ``mlsim check`` and on load), and an
+    optional ``warnings(scene) -> [str]`` of what is plausible but expensive (printed by ``mlsim check``)."""
 
     name: str
     sensor_model: type
     stages: tuple[Stage, ...]
     check: Callable[[Any], list] | None = None
+    warnings: Callable[[Any], list] | None = None
 
     @property
     def stage_map(self) -> dict[str, Stage]:
@@ -80,7 +82,8 @@ DEFAULT_KIND = "ml_rod_array"
 _KINDS: dict[str, SensorKind] = {}
 
 
-def register_kind(name: str, sensor_model: type, stages, check: Callable[[Any], list] | None = None) -> SensorKind:
+def register_kind(name: str, sensor_model: type, stages, check: Callable[[Any], list] | None = None,
+                  warnings: Callable[[Any], list] | None = None) -> SensorKind:
     """Register (or replace) a sensor kind. The stages' ``needs`` must name earlier stages of the
     kind, and stage names must be unique: a ``ValueError`` says which is wrong."""
     stages = tuple(stages)
@@ -92,7 +95,7 @@ def register_kind(name: str, sensor_model: type, stages, check: Callable[[Any], 
         if missing:
             raise ValueError(f"sensor kind {name!r}: stage {s.name!r} needs {missing}, which must be registered before it")
         seen.add(s.name)
-    _KINDS[name] = SensorKind(name, sensor_model, stages, check)
+    _KINDS[name] = SensorKind(name, sensor_model, stages, check, warnings)
     return _KINDS[name]
 
 

@@ -2,7 +2,8 @@
 or two drawn at a time from wide ranges (0, tiny, huge, negative, NaN, inf and ordinary numbers), set
 with ``--set`` and run through ``mlsim run --dry-run`` (validation, plausibility, the plan and its
 cost estimate). Each draw either passes and prints its estimate, or exits 2 naming a field; no
-traceback (an exception escaping ``mlsim.cli.main`` fails the test with the draw).
+traceback (an exception escaping ``mlsim.cli.main`` fails the test with the draw). Draws on the
+scenes cheap enough to run (``RUN_SCENES``: the sole's feasibility and balance loop) run for real.
 
 The draws are seeded (hypothesis ``derandomize``): the same draws on every run. ``make test`` takes
 ``FAST_DRAWS``; ``-m slow`` takes ``SLOW_DRAWS``. Draws that once failed are kept in
@@ -25,10 +26,13 @@ from mlsim.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 # a shipped scene of each sensor kind (the ml_rod_array's default demo: every stage, a full load)
+# and, for the sibling kinds' plausibility (other_sensors/<kind>/plausibility.py), the scenes whose
+# sections the first leaves at their defaults: the balance loops, two feet, the point-dipole skin
 KIND_SCENES = {"ml_rod_array": "scenes/mavig_default.toml", "cls": "scenes/cls/general.toml", "plantar_sole": "scenes/sole/obstacles.toml",
-               "anyskin": "scenes/anyskin/push_study.toml"}
+               "anyskin": "scenes/anyskin/push_study.toml", "plantar_sole/balance": "scenes/sole/balance_sweep.toml",
+               "plantar_sole/double_support": "scenes/sole/double_support.toml", "anyskin/point_dipole": "scenes/anyskin/headon_push.toml"}
 CORPUS = ROOT / "tests" / "data" / "fuzz_corpus.json"
-FAST_DRAWS = 300  # about 20 s on 2 shared cores
+FAST_DRAWS = 600  # about 11 s on 2 shared cores (7 scenes: ml_rod_array about 86 of them)
 SLOW_DRAWS = 3000
 
 SPECIAL = [0, 0.0, -0.0, -1, -1.0, 1e-300, 5e-324, 1e-9, 1e-3, 0.5, 1.0, 2, 3.7, 100, 1e6, 1e9, 1e300, 1.7976931348623157e308,
@@ -74,16 +78,20 @@ def draws(draw):
     return KIND_SCENES[kind], {f: draw(values) for f in chosen}
 
 
-def check_draw(scene_file: str, changes: dict, capsys, tmp_path) -> int:
-    """Run the draw through ``mlsim run --dry-run``; assert its outcome; return the exit code."""
-    argv = ["run", str(ROOT / scene_file), "--dry-run", "--cache", str(tmp_path / "cache")]
+def check_draw(scene_file: str, changes: dict, capsys, tmp_path, dry_run: bool = True) -> int:
+    """Run the draw through ``mlsim run --dry-run`` (or, ``dry_run=False``, the run itself into
+    ``tmp_path``); assert its outcome; return the exit code."""
+    argv = ["run", str(ROOT / scene_file), "--cache", str(tmp_path / "cache")]
+    argv += ["--dry-run"] if dry_run else ["--out", str(tmp_path / "out")]
     for path, value in changes.items():
         argv += ["--set", f"{path}={toml_value(value)}"]
     code = main(argv)
     out, err = capsys.readouterr()
     assert "Traceback" not in err, (changes, err)
-    if code == 0:
+    if code == 0 and dry_run:
         assert "estimate:" in out, (changes, out)
+    elif code == 0:
+        assert any((tmp_path / "out").rglob("*")), (changes, out)
     else:
         assert code == 2, (changes, code, err)
         # every problem line names a dotted field (or a command-line flag) and what is valid
@@ -122,6 +130,28 @@ def _fuzz(max_examples: int):
 
 test_fuzzed_scenes_pass_or_name_a_field = _fuzz(FAST_DRAWS)
 test_fuzzed_scenes_many_draws = pytest.mark.slow(_fuzz(SLOW_DRAWS))
+
+
+# Scenes cheap enough to run for real (milliseconds to a second a run): a draw that passes check runs
+# to its outputs, so the plausibility checks are shown to keep the stages from a traceback, not only
+# the plan (60 draws of each: about 10 s)
+RUN_SCENES = ("scenes/sole/three_spheres.toml", "scenes/sole/balance_push.toml")
+RUN_DRAWS = 60
+
+
+@st.composite
+def run_draws(draw):
+    scene_file = draw(st.sampled_from(RUN_SCENES))
+    chosen = draw(st.lists(st.sampled_from(numeric_fields(scene_file)), min_size=1, max_size=2, unique=True))
+    return scene_file, {f: draw(values) for f in chosen}
+
+
+@settings(max_examples=RUN_DRAWS, derandomize=True, database=None, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(draw=run_draws())
+def test_fuzzed_cheap_scenes_run_to_their_outputs_or_name_a_field(draw, capsys, tmp_path_factory):
+    scene_file, changes = draw
+    check_draw(scene_file, changes, capsys, tmp_path_factory.mktemp("run"), dry_run=False)
 
 
 EXTREMES = (0, -1, 1e-300, 1e300, math.nan, math.inf, -math.inf)

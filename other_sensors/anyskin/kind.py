@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from mlsim.stage import register_kind
 
+from .plausibility import warnings
 from .schema import MAX_ANGULAR_RATE_DEG_S, AnySkinSensor
 from .stages import BENCH, CONTACT, DRIFT, PITCH, SIGNALS
 
@@ -47,9 +48,13 @@ def _check(scene) -> list:
                              "sensor.skin.modulus_kpa or contact_radius_mm"))
     if tr.duration_s * s.magnetometers.rate_hz < 2:
         problems.append(("sensor.trajectory.duration_s", tr.duration_s, "give at least two samples"))
+    if not problems:  # a consistent scene whose push or size no helmet or machine allows (issue 39)
+        from .plausibility import problems as implausible
+
+        problems = implausible(scene)
     return problems
 
 
-KIND = register_kind("anyskin", AnySkinSensor, [SIGNALS, CONTACT, DRIFT, PITCH, BENCH], check=_check)
+KIND = register_kind("anyskin", AnySkinSensor, [SIGNALS, CONTACT, DRIFT, PITCH, BENCH], check=_check, warnings=warnings)
 """The Head-On helmet of SPEC 2: four AnySkin magnetic skins in an X on a quadruped's pitched helmet face,
 pushed against a force plate while walking; ``other_sensors.anyskin.kind`` registers the ``anyskin`` kind."""

@@ -177,4 +177,8 @@ def check(scene) -> list:
         problems.append(("sensor.calibration.v_max_v", s.calibration.v_max_v, f"must be <= sensor.noise.adc_range_v = {s.noise.adc_range_v}"))
     if tr.compression_mm >= s.foam.height_mm:
         problems.append(("sensor.trajectory.compression_mm", tr.compression_mm, f"must be < sensor.foam.height_mm = {s.foam.height_mm}"))
+    if not problems:  # a consistent scene whose motion or size no shell or machine allows (issue 39)
+        from other_sensors.cls.plausibility import problems as implausible
+
+        problems = implausible(scene)
     return problems

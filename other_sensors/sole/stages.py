@@ -81,6 +81,10 @@ def check(scene) -> list:
             problems.append(("sensor.landing.swing_height_mm", sensor.landing.swing_height_mm,
                              f"the terrain meets the sole {1e3 * top:.1f} mm above the planned ground, above the swing's apex; "
                              "raise swing_height_mm or give sensor.landing.speed_mm_s"))
+    if not problems:  # a consistent scene whose feet or size the contact model or no machine allows (issue 39)
+        from .plausibility import problems as implausible
+
+        problems = implausible(scene)
     return problems
 
 
