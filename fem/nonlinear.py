@@ -149,6 +149,9 @@ def residual_u(basis, mu_q: np.ndarray, p_q: np.ndarray, s: float, F: np.ndarray
 
 
 _PATTERNS: dict = {}
+#: residual_and_tangent(..., with_tangent=False) by the compiled kernel of fem.residual_kernels (False: the
+#: numpy evaluation below, the same vector to round-off; the A/B switch)
+COMPILED_RESIDUAL = True
 
 
 def _csr_pattern(element_dofs: np.ndarray, n: int):
@@ -174,6 +177,12 @@ def residual_and_tangent(d: Discretisation, x: np.ndarray, lam, mu, with_tangent
     """
     if d.p is None:
         raise ValueError("the nonlinear tier uses the mixed P2P1 discretisation")
+    if not with_tangent and COMPILED_RESIDUAL:
+        # the residual alone (the condensed Newton's outer iterations, line searches): one fused compiled
+        # loop, without scikit-fem's interpolation and the (3, 3, E, Q) temporaries (fem.residual_kernels)
+        from fem.residual_kernels import neo_hookean_residual
+
+        return neo_hookean_residual(d, x, _per_qp(lam, d.u), _per_qp(mu, d.u)), None
     s = d.pressure_scale
     u, ph = x[: d.n_u], x[d.n_u :]
     prev = d.u.interpolate(u)

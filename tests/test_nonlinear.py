@@ -66,6 +66,34 @@ def test_tangent_is_the_derivative_of_the_residual(rod):
     assert np.linalg.norm(central - k @ dx) <= 1e-6 * np.linalg.norm(k @ dx)
 
 
+def test_compiled_residual_equals_the_numpy_evaluation(rod, monkeypatch):
+    """fem.residual_kernels (one fused loop) against fem.nonlinear's batched evaluation, at a strained
+    state with pressure and per-element moduli (a stiffness contrast of 100); an inverted element is
+    refused by both."""
+    import fem.nonlinear as nl
+
+    d, *_ = rod
+    rng = np.random.default_rng(11)
+    # a smooth large deformation (bending, twist and stretch, strains of order 10 %: random nodal noise
+    # inverts the mesh's thin boundary elements) with a random pressure
+    X, Y, Z = d.u.doflocs
+    comp = np.arange(d.n_u) % 3  # the vector basis interleaves components (dof 3 i + a)
+    field = np.where(comp == 0, 0.3 * Z**2 / LENGTH - 0.1 * Y * Z / LENGTH, np.where(comp == 1, 0.1 * X * Z / LENGTH, 0.05 * Z))
+    x = np.concatenate([field, 0.3 * rng.standard_normal(d.p.N)])
+    lam = LAM * rng.uniform(0.01, 1.0, d.u.mesh.nelements)
+    mu = MU * rng.uniform(0.01, 1.0, d.u.mesh.nelements)
+    ours, _ = residual_and_tangent(d, x, lam, mu, with_tangent=False)
+    monkeypatch.setattr(nl, "COMPILED_RESIDUAL", False)
+    ref, _ = residual_and_tangent(d, x, lam, mu, with_tangent=False)
+    assert np.abs(ref[: d.n_u]).max() > 0 and np.abs(ref[d.n_u :]).max() > 0
+    np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    monkeypatch.setattr(nl, "COMPILED_RESIDUAL", True)
+    crushed = x.copy()
+    crushed[: d.n_u] = -2.0 * d.u.doflocs[comp, np.arange(d.n_u)]  # u = -2 X: F = -I, every point through the origin
+    with pytest.raises(FloatingPointError, match="det F <= 0"):
+        residual_and_tangent(d, crushed, LAM, MU, with_tangent=False)
+
+
 def test_vectorised_tangent_equals_scikit_fem_form_assembly(rod):
     """fem.nonlinear.tangent_uu (two batched products) and residual_u (one) against scikit-fem
     assembling the same weak forms pair by pair, at a strained state with pressure."""
