@@ -8,7 +8,8 @@ Layers, lowest first:
 1. stages: the physics and the detector, each stage declared next to its code (``fem``,
    ``mlsim.emission``, ``mlsim.render``, ``mlsim.camera``, ``dllm``, ``classifiers``), and the sensor
    kinds that register them (``mlsim.ml_rod_array``);
-2. orchestration: the planner and cache, the command line, datasets, sweeps, accuracy and detector studies.
+2. orchestration: the planner and cache, the command line, the two job drivers (``mlsim.dataset``,
+   ``mlsim.sweep``) and the studies that run the pipeline (``mlsim.studies``).
 """
 
 from __future__ import annotations
@@ -21,13 +22,11 @@ PACKAGES = ("mlsim", "fem", "dllm", "classifiers", "other_sensors")
 BASE = ("mlsim", "mlsim.errors", "mlsim.io", "mlsim.stage", "mlsim.scene", "mlsim.plausibility", "mlsim.cost_model", "mlsim.materials", "mlsim.spectra",
         "mlsim.plots", "mlsim.units", "fem.materials", "fem.materials.linear_elastic", "fem.materials.neo_hookean", "fem.materials.shore_hardness")
 ORCHESTRATION = ("mlsim.pipeline", "mlsim.cli", "mlsim.cli_grammar", "mlsim.dry_run", "mlsim.run_budget", "mlsim.docgen", "mlsim.__main__", "mlsim.dataset",
-                 "mlsim.sweep", "mlsim.accuracy", "mlsim.detect", "mlsim.sensor_calibration", "mlsim.press_brightness", "mlsim.render.accuracy",
-                 "dllm.direction", "dllm.ambient_study", "classifiers.cli", "classifiers.anyskin_cli")
+                 "mlsim.sweep", "mlsim.studies", "mlsim.detect", "mlsim.sensor_calibration", "mlsim.press_brightness", "dllm.direction")
 #: the stage packages: the physics and the detector, no driver of the pipeline
 STAGE_PACKAGES = ("fem", "mlsim.emission", "mlsim.render", "mlsim.camera", "dllm", "classifiers", "other_sensors")
-#: orchestration modules still inside a stage package, to move into one studies package (issue 42's plan,
-#: after the other branches of 2026-11-27 land); no other may join them
-STUDIES_TO_MOVE = {"dllm.direction", "dllm.ambient_study", "mlsim.render.accuracy", "classifiers.cli", "classifiers.anyskin_cli"}
+#: orchestration modules still inside a stage package, to move into mlsim.studies (issue 42); no other may join them
+STUDIES_TO_MOVE = {"dllm.direction"}
 
 
 def layer(module: str) -> int:

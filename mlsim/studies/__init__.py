@@ -1,0 +1,16 @@
+"""The studies: orchestration (layer 2) that runs the pipeline and reports on it.
+
+Each study is a driver and its report; the physics it measures stays in its stage's package (the
+direction estimator in :mod:`dllm.direction`, the detector in :mod:`dllm.episode`, the render tiers in
+:mod:`mlsim.render`), and no stage package imports this one (``tests/test_layers.py``).
+
+- :mod:`mlsim.studies.accuracy`: ``mlsim accuracy``, the solve tiers against the reference (and the
+  error measures the other accuracy studies share);
+- :mod:`mlsim.studies.render_accuracy`: ``mlsim render-accuracy``, the render tiers against path tracing;
+- :mod:`mlsim.studies.ambient`: ``mlsim ambient``, the detector's thresholds under ambient light;
+- :mod:`mlsim.studies.classifier_cli`: ``mlsim train | evaluate | ablation`` of the interaction classifier;
+- :mod:`mlsim.studies.anyskin_cli`: ``mlsim anyskin-train``, the AnySkin helmet's estimators.
+
+Beside it, the two job drivers: :mod:`mlsim.dataset` (datasets of episodes) and :mod:`mlsim.sweep`
+(design sweeps).
+"""
