@@ -199,7 +199,8 @@ def _study(args, kind: str):
 
 
 def cmd_direction(args) -> int:
-    from dllm.direction import SIGN_CONVENTION, direction_study, summary
+    from dllm.direction import SIGN_CONVENTION
+    from mlsim.studies.direction import direction_study, summary
 
     scene, out_dir, log = _study(args, "direction")
     if args.dry_run:

@@ -256,8 +256,9 @@ def test_direction_study_turns_with_the_push(tmp_path, cache):
     writes its table (with the approach bearing, applied + 180) and plot."""
     from pathlib import Path
 
-    from dllm.direction import direction_study, wrap_deg
+    from dllm.direction import wrap_deg
     from mlsim.scene import load_scene
+    from mlsim.studies.direction import direction_study
 
     scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "mavig_tiny.toml",
                        {"camera.width_px": 96, "camera.height_px": 96, "fidelity.render.transport_spp": 8})

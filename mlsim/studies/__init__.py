@@ -7,6 +7,7 @@ direction estimator in :mod:`dllm.direction`, the detector in :mod:`dllm.episode
 - :mod:`mlsim.studies.accuracy`: ``mlsim accuracy``, the solve tiers against the reference (and the
   error measures the other accuracy studies share);
 - :mod:`mlsim.studies.render_accuracy`: ``mlsim render-accuracy``, the render tiers against path tracing;
+- :mod:`mlsim.studies.direction`: ``mlsim direction``, the DLLM's angle against the push direction;
 - :mod:`mlsim.studies.ambient`: ``mlsim ambient``, the detector's thresholds under ambient light;
 - :mod:`mlsim.studies.classifier_cli`: ``mlsim train | evaluate | ablation`` of the interaction classifier;
 - :mod:`mlsim.studies.anyskin_cli`: ``mlsim anyskin-train``, the AnySkin helmet's estimators.
