@@ -10,7 +10,10 @@ direction estimator in :mod:`dllm.direction`, the detector in :mod:`dllm.episode
 - :mod:`mlsim.studies.direction`: ``mlsim direction``, the DLLM's angle against the push direction;
 - :mod:`mlsim.studies.ambient`: ``mlsim ambient``, the detector's thresholds under ambient light;
 - :mod:`mlsim.studies.classifier_cli`: ``mlsim train | evaluate | ablation`` of the interaction classifier;
-- :mod:`mlsim.studies.anyskin_cli`: ``mlsim anyskin-train``, the AnySkin helmet's estimators.
+- :mod:`mlsim.studies.anyskin_cli`: ``mlsim anyskin-train``, the AnySkin helmet's estimators;
+- :mod:`mlsim.studies.verify_s2`: the published FEM set-up of SPEC 1.4 (its set-up in :mod:`fem.verify_s2`),
+  run as the ``verify_s2`` output of ``ml_rod_array`` through its stage in :mod:`mlsim.studies.stages`,
+  which the registry adds to the kind (:data:`mlsim.stage.BUILTIN_STUDY_STAGES`).
 
 Beside it, the two job drivers: :mod:`mlsim.dataset` (datasets of episodes) and :mod:`mlsim.sweep`
 (design sweeps).
