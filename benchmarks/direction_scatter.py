@@ -32,8 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from dllm.direction import direction_study, summary, wrap_deg
+from dllm.direction import wrap_deg
 from mlsim.scene import load_scene
+from mlsim.studies.direction import direction_study, summary
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -4,10 +4,12 @@
   standardisation, windows of episodes and streams (pure numpy);
 - :mod:`classifiers.interaction_cnn`: the network;
 - :mod:`classifiers.train`: held-out-people training, evaluation, model files, ablation, stream
-  prediction;
-- :mod:`classifiers.cli`: ``mlsim train | evaluate | ablation``.
+  prediction.
 
-Names are imported on first use, so ``from classifiers.cli import add_parsers`` (done by the
+Their commands, ``mlsim train | evaluate | ablation`` and ``mlsim anyskin-train``, are orchestration:
+:mod:`mlsim.studies.classifier_cli` and :mod:`mlsim.studies.anyskin_cli`.
+
+Names are imported on first use, so ``from mlsim.studies.classifier_cli import add_parsers`` (done by the
 ``mlsim`` command line at start-up) does not import torch. ``classifiers.train`` is the module
 (its function: ``from classifiers.train import train``).
 """

@@ -6,5 +6,8 @@
 - :mod:`dllm.features`: the feature conventions (angles in degrees and radians);
 - :mod:`dllm.episode`: the detector over one episode's frames, its files and summary;
 - :mod:`dllm.stage`: the ``dllm`` stage of the ``ml_rod_array`` sensor kind;
-- :mod:`dllm.direction`, :mod:`dllm.ambient_study`: studies (orchestration: they run the pipeline).
+- :mod:`dllm.direction`: the direction estimator (SPEC 1.5).
+
+The studies that run the detector through the pipeline (``mlsim direction``, ``mlsim ambient``) are
+orchestration, in :mod:`mlsim.studies`.
 """

@@ -29,7 +29,7 @@ under the contact (and P-delta) loads; sections are rigid; the rotations are tho
 solution; the axis' drop uses the slabs' mean rotation, the tip face its plane's tilt. On the tiny
 scene's slide (a 6 mm sphere pressed 1 mm between four rods and slid 4 mm, mu 0.8: tilts of 10-15
 deg) it brings the linear tier from 43 / 76 / 40 % to 7.4 / 11 / 7.1 % off the nonlinear tier
-(rod-base von Mises / per-rod contact force / tip displacement, mlsim.accuracy), and the reduced
+(rod-base von Mises / per-rod contact force / tip displacement, mlsim.studies.accuracy), and the reduced
 tier from 15 / 35 / 17 % to 8.6 / 10.5 / 9.4 %. Its cost is the contact loop's fixed point in q:
 5-12 linearisations per moving step instead of 1-3 (about 2-3 x the contact time per frame on the
 default demo).
@@ -252,7 +252,7 @@ def first_order_force_error(sections: RodSections, points: np.ndarray, du: np.nd
     tip face) with a force F_z, so with the rod's secant stiffness F_z / c the force is off by about
     dF = F_z delta / c. The estimate is the relative Frobenius norm of dF over steps (weighted by
     ``weights``, e.g. frames per step) and rods against the forces, the measure of
-    :mod:`mlsim.accuracy`.
+    :mod:`mlsim.studies.accuracy`.
 
     A linearisation of the missed geometry, not a bound: it leaves out the material's own
     nonlinearity and friction's changed stick and slip. Measured against the nonlinear tier (2 mm,

@@ -1,6 +1,6 @@
-"""The FEM stages of the ML rod array (``mlsim.ml_rod_array``): the parametric geometry, the tet mesh,
-the quasi-static solve, and the verification case of SPEC 1.4. Each stage imports its heavy
-dependencies inside its functions."""
+"""The FEM stages of the ML rod array (``mlsim.ml_rod_array``): the parametric geometry, the tet mesh
+and the quasi-static solve (the verification case of SPEC 1.4 is a study: :mod:`mlsim.studies.stages`).
+Each stage imports its heavy dependencies inside its functions."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from pathlib import Path
 
 from mlsim.io import atomic_bytes
 from mlsim.scene import Scene
-from mlsim.stage import RunContext, Stage, cached_precompute, npz_io, pickle_load, pickle_save, stage_key
+from mlsim.stage import RunContext, Stage, cached_precompute, npz_io, stage_key
 
-__all__ = ["GEOMETRY_FIELDS", "BODY_FIELDS", "GEOMETRY", "MESH", "SOLVE", "VERIFY_S2", "REDUCED_MODEL"]
+__all__ = ["GEOMETRY_FIELDS", "BODY_FIELDS", "GEOMETRY", "MESH", "SOLVE", "REDUCED_MODEL"]
 
 # Scene fields that shape the rod array's geometry (shared by geometry and mesh).
 GEOMETRY_FIELDS = (
@@ -231,27 +231,6 @@ def _solve_summary(episode) -> dict:
     return episode.summary()
 
 
-def _verify_s2_run(scene: Scene, inputs: dict, ctx: "RunContext"):
-    from fem.verify_s2 import run
-    from mlsim.scene import resolve_material
-
-    spec = scene.verify_s2
-    materials = {name: resolve_material(name, scene.materials) for name in {spec.slab_material, spec.block_material}}
-    return run(spec, progress=ctx.progress, log=ctx.log, materials=materials)
-
-
-def _verify_s2_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
-    from fem.verify_s2 import write
-
-    return write(result, out_dir)
-
-
-def _verify_s2_summary(result) -> dict:
-    from fem.verify_s2 import summary
-
-    return summary(result)
-
-
 # Not a stage of the plan (its need depends on the tier): the solve stage caches it through this.
 REDUCED_MODEL = Stage(name="reduced_model", doc="reduced tier precompute", reads=(), needs=(), run=lambda *a: None,
                       save=_reduced_save, load=_reduced_load)
@@ -298,16 +277,4 @@ SOLVE = Stage(
     load=_solve_load,
     write=_solve_write,
     summarize=_solve_summary,
-)
-
-VERIFY_S2 = Stage(
-    name="verify_s2",
-    doc="the published FEM set-up of SPEC 1.4 (rod on a slab vs steel block on a slab); profiles CSV and plot, ratios in the summary",
-    reads=("verify_s2", "materials"),
-    needs=(),
-    run=_verify_s2_run,
-    save=pickle_save,  # an internal cache of this code version (the stage key carries the version)
-    load=pickle_load,
-    write=_verify_s2_write,
-    summarize=_verify_s2_summary,
 )

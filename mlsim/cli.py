@@ -136,7 +136,7 @@ def cmd_mesh(args) -> int:
 
 
 def cmd_accuracy(args) -> int:
-    from mlsim.accuracy import ERRORS, solve_accuracy
+    from mlsim.studies.accuracy import ERRORS, solve_accuracy
 
     if args.stage not in ("solve", "render"):
         raise SceneError([Problem("--stage", args.stage, "the accuracy studies are of the solve and the render stages; use --stage solve or render")])
@@ -177,7 +177,7 @@ def cmd_accuracy(args) -> int:
 
 
 def _render_accuracy(args, scene, out_dir: Path) -> int:
-    from mlsim.render.accuracy import RENDER_ERRORS, render_accuracy
+    from mlsim.studies.render_accuracy import RENDER_ERRORS, render_accuracy
 
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     rows, info = render_accuracy(scene, tuple(args.spp), tuple(args.transport_spp), args.reference_spp, args.frames,
@@ -203,7 +203,8 @@ def _study(args, kind: str):
 
 
 def cmd_direction(args) -> int:
-    from dllm.direction import SIGN_CONVENTION, direction_study, summary
+    from dllm.direction import SIGN_CONVENTION
+    from mlsim.studies.direction import direction_study, summary
 
     scene, out_dir, log = _study(args, "direction")
     if args.dry_run:
@@ -227,12 +228,12 @@ def cmd_direction(args) -> int:
 
 
 def cmd_ambient(args) -> int:
-    from dllm.ambient_study import ambient_study
+    from mlsim.studies.ambient import ambient_study
 
     scene, out_dir, log = _study(args, "ambient")
     if args.dry_run:
-        from dllm.ambient_study import setting_scenes
         from mlsim.dry_run import study_plan
+        from mlsim.studies.ambient import setting_scenes
 
         runs = [f"{name}: interaction and idle episodes, then {len(args.alphas)} x {len(args.betas)} thresholds" for name in setting_scenes(scene)]
         return study_plan("ambient", args.scene, out_dir, runs, scene, _cache(args), ("camera", "calibration"))
@@ -454,12 +455,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--press", metavar="VIDEO", help="a recorded press (its first second idle) of the scene's [load]: the ML brightness")
     p.add_argument("--force-n", type=float, metavar="F", help="the press's force (N), set on the [load]'s force-controlled press")
     try:
-        from classifiers.cli import add_parsers
+        from mlsim.studies.classifier_cli import add_parsers
     except ImportError:
         pass
     else:
         add_parsers(sub)
-        from classifiers.anyskin_cli import add_parsers as add_anyskin_parsers  # mlsim anyskin-train (issue 19)
+        from mlsim.studies.anyskin_cli import add_parsers as add_anyskin_parsers  # mlsim anyskin-train (issue 19)
 
         add_anyskin_parsers(sub)
     return parser

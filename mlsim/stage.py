@@ -6,7 +6,8 @@ its code (``fem/stages.py``, ``mlsim/emission/stage.py``, ``mlsim/render/stage.p
 ``dllm/stage.py``, ``classifiers/stage.py``). A sensor kind (``sensor.kind`` in the scene) is a
 name, the schema of its ``[sensor]`` section and its stages in an order where each follows the
 stages it needs (:func:`register_kind`). The built-in kinds are registered by the modules of
-:data:`BUILTIN_KINDS`, imported on first use, so that importing the registry imports no stage
+:data:`BUILTIN_KINDS`, imported on first use (with the stages that studies add to them,
+:data:`BUILTIN_STUDY_STAGES`), so that importing the registry imports no stage
 code (and a run imports only the stages its plan touches, each importing its heavy dependencies
 inside its functions).
 
@@ -26,8 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["Stage", "SensorKind", "RunContext", "BUILTIN_KINDS", "DEFAULT_KIND", "register_kind", "unregister_kind", "kind", "kinds", "stages", "outputs",
-           "stage_key", "memo", "cached_precompute", "npz_io", "pickle_save", "pickle_load"]
+__all__ = ["Stage", "SensorKind", "RunContext", "BUILTIN_KINDS", "BUILTIN_STUDY_STAGES", "DEFAULT_KIND", "register_kind", "unregister_kind", "kind",
+           "kinds", "stages", "outputs", "stage_key", "memo", "cached_precompute", "npz_io", "pickle_save", "pickle_load"]
 
 
 @dataclass(frozen=True)
@@ -78,6 +79,10 @@ class SensorKind:
 #: The built-in kinds and the modules that register them (imported on first use).
 BUILTIN_KINDS: dict[str, str] = {"ml_rod_array": "mlsim.ml_rod_array", "cls": "other_sensors.cls.kind",
                                  "plantar_sole": "other_sensors.sole.kind", "anyskin": "other_sensors.anyskin.kind"}
+#: The stages that studies (orchestration) add to a built-in kind, as "module:NAME", imported with the
+#: kind on first use and placed after its own stages: a study run as one of the kind's outputs, found
+#: here so that the kind's module (a stage package) never imports a study.
+BUILTIN_STUDY_STAGES: dict[str, tuple[str, ...]] = {"ml_rod_array": ("mlsim.studies.stages:VERIFY_S2",)}
 DEFAULT_KIND = "ml_rod_array"
 _KINDS: dict[str, SensorKind] = {}
 
@@ -113,9 +118,19 @@ def kind(name: str) -> SensorKind:
     """The registered kind ``name`` (a built-in one is imported and registered on first use)."""
     if name not in _KINDS and name in BUILTIN_KINDS:
         importlib.import_module(BUILTIN_KINDS[name])
+        studies = tuple(_attribute(ref) for ref in BUILTIN_STUDY_STAGES.get(name, ()))
+        if studies and name in _KINDS:
+            k = _KINDS[name]
+            register_kind(name, k.sensor_model, k.stages + studies, k.check)
     if name not in _KINDS:
         raise KeyError(f'sensor.kind = "{name}": unknown sensor kind; choose from: {", ".join(kinds())}')
     return _KINDS[name]
+
+
+def _attribute(ref: str):
+    """The object a "module:NAME" reference names (the module imported)."""
+    module, attr = ref.split(":")
+    return getattr(importlib.import_module(module), attr)
 
 
 def stages(kind_name: str = DEFAULT_KIND) -> dict[str, Stage]:
@@ -205,8 +220,7 @@ def npz_io(filename: str, cls: str):
         result.save(directory / filename)
 
     def load(directory: Path):
-        module, name = cls.split(":")
-        return getattr(importlib.import_module(module), name).load(directory / filename)
+        return _attribute(cls).load(directory / filename)
 
     return save, load
 

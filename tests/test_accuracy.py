@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mlsim import accuracy
 from mlsim.cli import main
 from mlsim.scene import load_scene
+from mlsim.studies import accuracy
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "scenes" / "mavig_tiny.toml"

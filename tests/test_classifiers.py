@@ -434,7 +434,7 @@ def test_bad_inputs_name_the_field():
 
 
 def test_cli_train_then_evaluate(episodes, tmp_path, monkeypatch, capsys):
-    from classifiers import cli
+    from mlsim.studies import classifier_cli as cli
 
     reader = types.ModuleType("mlsim.dataset.reader")
     reader.load_episodes = lambda path: episodes

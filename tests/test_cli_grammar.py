@@ -124,9 +124,9 @@ def test_trained_models_go_to_out_never_into_scenes():
     for verb in ("train", "ablation", "anyskin-train", "evaluate"):
         out = options(verbs()[verb])["--out"]
         assert out.default is None and "scenes/" not in out.help
-    from classifiers import anyskin_cli, cli
+    from mlsim.studies import anyskin_cli, classifier_cli
 
-    for module in (anyskin_cli, cli):
+    for module in (anyskin_cli, classifier_cli):
         source = Path(module.__file__).read_text()
         assert 'Path("scenes")' not in source and "scenes/anyskin/models" not in source.split("def add_parsers")[0]
 

@@ -256,8 +256,9 @@ def test_direction_study_turns_with_the_push(tmp_path, cache):
     writes its table (with the approach bearing, applied + 180) and plot."""
     from pathlib import Path
 
-    from dllm.direction import direction_study, wrap_deg
+    from dllm.direction import wrap_deg
     from mlsim.scene import load_scene
+    from mlsim.studies.direction import direction_study
 
     scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "mavig_tiny.toml",
                        {"camera.width_px": 96, "camera.height_px": 96, "fidelity.render.transport_spp": 8})
@@ -307,9 +308,9 @@ def test_ambient_study_false_triggers_follow_the_lights_on_jump(tmp_path, cache)
     study's table, recommendation (no false trigger anywhere) and heatmaps follow."""
     from pathlib import Path
 
-    from dllm.ambient_study import _frames, ambient_study
     from dllm.calibration import grey
     from mlsim.scene import load_scene
+    from mlsim.studies.ambient import _frames, ambient_study
 
     scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "mavig_tiny.toml",
                        {"camera.width_px": 96, "camera.height_px": 96, "fidelity.render.transport_spp": 8})
@@ -338,8 +339,8 @@ def test_ambient_settings_start_from_the_scenes_ambient_reset():
     scene without a lamp a setting's scene is the plain override (the same cache keys as before)."""
     from pathlib import Path
 
-    from dllm.ambient_study import DEFAULT_SETTINGS, SCENE_SETTING, setting_scenes
     from mlsim.scene import load_scene
+    from mlsim.studies.ambient import DEFAULT_SETTINGS, SCENE_SETTING, setting_scenes
 
     scenes = Path(__file__).resolve().parents[1] / "scenes"
     lamp = load_scene(scenes / "ambient.toml")

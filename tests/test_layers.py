@@ -8,7 +8,8 @@ Layers, lowest first:
 1. stages: the physics and the detector, each stage declared next to its code (``fem``,
    ``mlsim.emission``, ``mlsim.render``, ``mlsim.camera``, ``dllm``, ``classifiers``), and the sensor
    kinds that register them (``mlsim.ml_rod_array``);
-2. orchestration: the planner and cache, the command line, datasets, sweeps, accuracy and detector studies.
+2. orchestration: the planner and cache, the command line, the two job drivers (``mlsim.dataset``,
+   ``mlsim.sweep``) and the studies that run the pipeline (``mlsim.studies``).
 """
 
 from __future__ import annotations
@@ -21,13 +22,9 @@ PACKAGES = ("mlsim", "fem", "dllm", "classifiers", "other_sensors")
 BASE = ("mlsim", "mlsim.errors", "mlsim.io", "mlsim.stage", "mlsim.scene", "mlsim.plausibility", "mlsim.cost_model", "mlsim.materials", "mlsim.spectra",
         "mlsim.plots", "mlsim.units", "fem.materials", "fem.materials.linear_elastic", "fem.materials.neo_hookean", "fem.materials.shore_hardness")
 ORCHESTRATION = ("mlsim.pipeline", "mlsim.cli", "mlsim.cli_grammar", "mlsim.dry_run", "mlsim.run_budget", "mlsim.docgen", "mlsim.__main__", "mlsim.dataset",
-                 "mlsim.sweep", "mlsim.accuracy", "mlsim.detect", "mlsim.sensor_calibration", "mlsim.press_brightness", "mlsim.render.accuracy",
-                 "dllm.direction", "dllm.ambient_study", "classifiers.cli", "classifiers.anyskin_cli")
+                 "mlsim.sweep", "mlsim.studies", "mlsim.detect", "mlsim.sensor_calibration", "mlsim.press_brightness")
 #: the stage packages: the physics and the detector, no driver of the pipeline
 STAGE_PACKAGES = ("fem", "mlsim.emission", "mlsim.render", "mlsim.camera", "dllm", "classifiers", "other_sensors")
-#: orchestration modules still inside a stage package, to move into one studies package (issue 42's plan,
-#: after the other branches of 2026-11-27 land); no other may join them
-STUDIES_TO_MOVE = {"dllm.direction", "dllm.ambient_study", "mlsim.render.accuracy", "classifiers.cli", "classifiers.anyskin_cli"}
 
 
 def layer(module: str) -> int:
@@ -121,11 +118,12 @@ def test_no_module_imports_from_a_layer_above_its_own():
 
 def test_no_study_in_a_stage_package():
     """A module that drives the pipeline (imports the planner, the CLI, datasets or sweeps) is a study:
-    it belongs to the orchestration layer's folders, not to a stage's package."""
+    it belongs to the orchestration layer's folders (``mlsim.studies``, or the job drivers
+    ``mlsim.dataset`` and ``mlsim.sweep``), not to a stage's package, where only its physics stays."""
     graph = import_graph()
     drivers = {m for m, deps in graph.items() if any(layer(d) == 2 for d in deps) or layer(m) == 2}
-    in_stages = {m for m in drivers if any(m == p or m.startswith(p + ".") for p in STAGE_PACKAGES)}
-    assert in_stages <= STUDIES_TO_MOVE, sorted(in_stages - STUDIES_TO_MOVE)
+    in_stages = sorted(m for m in drivers if any(m == p or m.startswith(p + ".") for p in STAGE_PACKAGES))
+    assert in_stages == []
 
 
 def test_there_is_no_import_circle():
@@ -137,4 +135,5 @@ def test_the_checks_see_what_they_should():
     graph = import_graph()
     assert "mlsim.stage" in graph["mlsim.pipeline"] and layer("mlsim.pipeline") == 2 and layer("mlsim.stage") == 0
     assert "fem.episode" in graph["fem.finite_strain"]
+    assert "dllm.direction" in graph["mlsim.studies.direction"] and layer("mlsim.studies.direction") == 2 and layer("dllm.direction") == 1
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]

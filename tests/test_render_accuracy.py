@@ -22,7 +22,7 @@ def _scene():
 
 
 def test_path_error_falls_at_the_monte_carlo_rate(tmp_path, cache):
-    from mlsim.render.accuracy import render_accuracy
+    from mlsim.studies.render_accuracy import render_accuracy
 
     spps = (2, 8, 32)
     rows, info = render_accuracy(_scene(), spps=spps, transport_spps=(32,), reference_spp=1024, frames=2, spectral=True,

@@ -174,7 +174,7 @@ def test_second_order_brings_the_tiny_slide_to_the_nonlinear_tier(tiny_mesh):
     tier, second order (rotation terms and P-delta) about 7-11 % (measured: base von Mises 7.4 %,
     per-rod force 11 %, tip displacement 7.1 %; first order 43 %, 76 %, 40 %). The nonlinear tier
     takes about 45 s."""
-    from mlsim.accuracy import relative_error, rod_measures
+    from mlsim.studies.accuracy import relative_error, rod_measures
 
     scene, _, mesh, _ = tiny_mesh
     base = scene.sensor.base.thickness_mm * 1e-3

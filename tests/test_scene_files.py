@@ -24,9 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: shipped scene, the sibling sensors' included, opens with one.
 KNOWN_GAPS: dict[str, str] = {}
 #: numeric fields whose unit is not in their name yet: (model, field) -> why.
-KNOWN_UNITLESS = {("BalanceSpec", "k_f"): "1/s (SPEC 4's CoM velocity gain); issue 43 renames it",
-                  ("BalanceSpec", "k_x"): "1/s (SPEC 4's CoM position gain); issue 43 renames it",
-                  ("PairsSpec", "coefficients"): "c1..c7 have seven units (V mm^2, mm, mm^2, -, -, -, V), named in the field's comment"}
+KNOWN_UNITLESS = {("PairsSpec", "coefficients"): "c1..c7 have seven units (V mm^2, mm, mm^2, -, -, -, V), named in the field's comment"}
 
 SCENES = sorted(ROOT.glob("scenes/**/*.toml"))
 

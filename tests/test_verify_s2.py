@@ -1,4 +1,5 @@
-"""The SPEC 1.4 verification case (fem/verify_s2.py): meshes, loads, solves, ratios, outputs.
+"""The SPEC 1.4 verification case: its set-up (fem/verify_s2.py: meshes, loads, solves) and its study
+(mlsim/studies/verify_s2.py: the run over tiers and forces, ratios, outputs; the ``verify_s2`` stage).
 
 Coarse meshes (edge 1 mm) keep the file fast; the default spec's 0.5 mm is run by hand.
 """
@@ -18,6 +19,7 @@ from fem.elasticity import dof_components, solve_static
 from fem.mesh import boundary_faces, signed_volumes
 from mlsim.materials import SHIPPED_MATERIALS
 from mlsim.scene import VerifyS2Spec, scene_from_dict
+from mlsim.studies import verify_s2 as study
 
 ROOT = Path(__file__).resolve().parents[1]
 EDGE_MM = 1.0
@@ -41,9 +43,9 @@ def sliding():
 def linear_run(tmp_path_factory):
     """run() of the linear tier on the coarse spec, written out: (result, summary, paths)."""
     spec = SPEC.model_copy(update={"tiers": ("linear",)})
-    result = v.run(spec, log=lambda m: None)
+    result = study.run(spec, log=lambda m: None)
     out = tmp_path_factory.mktemp("verify_s2")
-    return result, v.summary(result), v.write(result, out)
+    return result, study.summary(result), study.write(result, out)
 
 
 # ------------------------------------------------------------------------------------- meshes
@@ -344,13 +346,25 @@ def test_summary_reports_not_converged_forces_as_null():
     bad[1] = np.nan
     result.displacement_mm = {("linear", "sliding"): ok, ("linear", "pressing"): 2 * ok, ("nonlinear", "sliding"): bad, ("nonlinear", "pressing"): 2 * ok}
     result.converged = {k: np.all(np.isfinite(u), axis=(1, 2)) for k, u in result.displacement_mm.items()}
-    summary = v.summary(result)
+    summary = study.summary(result)
     assert summary["ratio_max_sliding_over_pressing"]["linear"] == {"1": 0.5, "2": 0.5}
     assert summary["ratio_max_sliding_over_pressing"]["nonlinear"] == {"1": 0.5, "2": None}
     assert summary["not_converged"] == [{"tier": "nonlinear", "case": "sliding", "force_n": 2.0}]
 
 
 # -------------------------------------------------------------------------------------- scene
+def test_the_study_is_an_output_of_the_rod_array_through_the_registry():
+    """The ``verify_s2`` stage is declared with the study (mlsim.studies.stages), not by the kind's
+    module: the registry adds it to ``ml_rod_array`` after the kind's own stages, and a scene can ask
+    for it as an output."""
+    from mlsim import stage
+    from mlsim.studies.stages import VERIFY_S2
+
+    kind = stage.kind("ml_rod_array")
+    assert kind.stages[-1] is VERIFY_S2 and "verify_s2" in kind.outputs
+    assert stage.stages("ml_rod_array")["verify_s2"].run is VERIFY_S2.run
+
+
 def test_scene_file_holds_the_spec_defaults():
     data = tomllib.loads((ROOT / "scenes" / "verify_fem_s2.toml").read_text())
     assert data["name"] == "verify_fem_s2" and data["outputs"] == ["verify_s2"]
@@ -425,14 +439,14 @@ def test_measures_of_the_linear_tier(pressing, sliding):
 
 def test_run_honours_the_reading(tmp_path):
     spec = SPEC.model_copy(update={"tiers": ("linear",), "forces_n": (1.0, 2.0)})
-    result = v.run(spec, log=lambda m: None, reading=v.Reading(measure="body_top"))
-    summary = v.summary(result)
+    result = study.run(spec, log=lambda m: None, reading=v.Reading(measure="body_top"))
+    summary = study.summary(result)
     assert summary["reading"] == {"measure": "body_top", "load_distribution": "band", "force_at": "height"}
     top = {c: summary["measured_displacement_mm"]["linear"][c]["max"] for c in v.CASES}
     assert summary["ratio_max_sliding_over_pressing"]["linear"]["2"] == pytest.approx(top["sliding"]["2"] / top["pressing"]["2"], rel=1e-12)
     # the profile along the slab's top (SPEC 1.4's plot) is written whatever the measure
     assert result.displacement_mm[("linear", "sliding")].shape == (2, 3, SPEC.profile_points)
-    rows = (v.write(result, tmp_path)[1]).read_text().splitlines()
+    rows = (study.write(result, tmp_path)[1]).read_text().splitlines()
     assert rows[0].startswith("tier,measure,") and rows[1].startswith("linear,body_top,1,")
 
 

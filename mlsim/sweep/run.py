@@ -176,7 +176,7 @@ def _separation(scene, cache_dir) -> dict:
 
 
 def _direction(scene, load: Load, angles, cache_dir) -> dict:
-    from dllm.direction import direction_study, summary
+    from mlsim.studies.direction import direction_study, summary
     from mlsim import pipeline
 
     s = load.apply(scene, ("dllm",))

@@ -5,6 +5,7 @@ LIPM (Kajita et al., 2001): a point mass m at constant height z_com over the gro
 x (2,) the CoM's ground projection and p (2,) the ZMP (m). The regulator of SPEC 4 (Englsberger's
 capture point with a ZMP-tracking CoM velocity command, as in Kajita 2010):
     xi = x + x' / omega,  p_d = xi + (k_xi / omega)(xi - xi_d),  x'_d = k_f (p - p_d) + k_x (x_d - x),
+(k_xi a pure number, k_f and k_x in 1/s: the scene's ``k_xi``, ``k_f_per_s``, ``k_x_per_s``)
 with p the measured ZMP: the skin's CoP (the cells' centres weighted by their forces, SPEC 4's
 formula) or the ankle F/T's. Standing still: x_d = xi_d = 0.
 
@@ -152,7 +153,7 @@ def simulate_balance(layout, spec, stiffness_n_m3: float, rng: np.random.Generat
         f_ext = np.array([push[k], 0.0])
         xi = x + v / omega
         p_d = xi + spec.k_xi / omega * (xi - 0.0)
-        v_d = spec.k_f * (p_meas - p_d) + spec.k_x * (0.0 - x)
+        v_d = spec.k_f_per_s * (p_meas - p_d) + spec.k_x_per_s * (0.0 - x)
         a = (v_d - v) / VELOCITY_LAG_S
         p = _clip_to(x - (a - f_ext / m) / omega**2, normals, offsets)
         a = omega**2 * (x - p) + f_ext / m

@@ -183,8 +183,8 @@ class BalanceSpec(_Model):
     mass_kg: float = Field(86.0, gt=0.0, le=1000.0)
     z_com_m: float = Field(0.8, gt=0.0, le=5.0)
     k_xi: float = Field(1.5, ge=0.0, le=100.0)
-    k_f: float = Field(0.5, ge=0.0, le=100.0)
-    k_x: float = Field(1.0, ge=0.0, le=100.0)
+    k_f_per_s: float = Field(0.5, ge=0.0, le=100.0)  # the ZMP error's gain in the CoM velocity command (SPEC 4)
+    k_x_per_s: float = Field(1.0, ge=0.0, le=100.0)  # the CoM position's gain (SPEC 4)
     rate_hz: float = Field(250.0, gt=0.0, le=10000.0)
     duration_s: float = Field(4.0, gt=0.0, le=60.0)
     # The push: a choice (SPEC 4 gives none): 80 N along x for 0.2 s at 0.5 s moves the ZMP ~7.5 cm,

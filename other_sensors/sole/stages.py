@@ -432,8 +432,8 @@ def _write_balance_sweep(runs, out_dir: Path, ctx) -> list[Path]:
     csv += [f"{r['push_n']:.6g},{r['zmp_excursion_mm']:.6g},{r['skin_ft_gap_mm']:.6g},{r['max_com_mm']:.6g},"
             f"{'' if r['fall_time_s'] is None else r['fall_time_s']},{'yes' if r['upright'] else 'no'}" for r in rows]
     b = ctx.scene.sensor.balance if ctx is not None and getattr(ctx, "scene", None) is not None else None
-    head = (f"Balance study (SPEC 4): LIPM {b.mass_kg:g} kg, CoM {b.z_com_m:g} m, CP-ZMP regulator (k_xi {b.k_xi:g}, k_f {b.k_f:g}, "
-            f"k_x {b.k_x:g}) fed by the {b.zmp_source} ZMP; a push along x for {b.push_duration_s:g} s at {b.push_start_s:g} s."
+    head = (f"Balance study (SPEC 4): LIPM {b.mass_kg:g} kg, CoM {b.z_com_m:g} m, CP-ZMP regulator (k_xi {b.k_xi:g}, k_f {b.k_f_per_s:g} /s, "
+            f"k_x {b.k_x_per_s:g} /s) fed by the {b.zmp_source} ZMP; a push along x for {b.push_duration_s:g} s at {b.push_start_s:g} s."
             if b is not None else "Balance study (SPEC 4).")
     md = [head, "", "| push (N) | peak ZMP excursion (mm) | max abs(skin ZMP - F/T ZMP) (mm) | peak CoM (mm) | upright |",
           "|---:|---:|---:|---:|---|"]

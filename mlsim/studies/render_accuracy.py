@@ -15,7 +15,7 @@ every phase), are rendered by every configuration and compared with a reference:
 
 The reference is the spectral path tracer at ``reference_spp`` on the deformed sheet: the most
 physical render the code has. Errors, relative Frobenius norms over frames x rods x channels (R, G,
-B) and over frames x pixels x channels (:func:`mlsim.accuracy.relative_error`):
+B) and over frames x pixels x channels (:func:`mlsim.studies.accuracy.relative_error`):
 
 - ``rod_intensity``: each rod's signal, the sum over its disk (:func:`mlsim.render.rod_disks_px`);
 - ``image``: every pixel.
@@ -63,7 +63,7 @@ def _rod_sums(images, masks) -> np.ndarray:
 
 
 def _errors(images, reference, masks) -> dict:
-    from mlsim.accuracy import relative_error
+    from mlsim.studies.accuracy import relative_error
 
     return {"rod_intensity": relative_error(_rod_sums(images, masks), _rod_sums(reference, masks)),
             "image": relative_error(np.asarray(images, np.float64), np.asarray(reference, np.float64))}
@@ -177,7 +177,7 @@ def render_accuracy(scene, spps=(1, 4, 16, 64), transport_spps=(16, 64), referen
                     seconds.append((time.perf_counter() - t0) / len(chosen))
                 rows.append(RenderRow("deformed", int(spp), False, float(np.median(seconds)) * 1e3, bounce_s + build_s,
                                       _errors(mono[..., None] * k, reference, masks), direct_per_side=int(n)))
-    from mlsim.accuracy import pareto_front
+    from mlsim.studies.accuracy import pareto_front
 
     for e in RENDER_ERRORS:
         front = pareto_front([r.per_frame_ms for r in rows], [r.errors[e] for r in rows])
