@@ -121,7 +121,7 @@ def kind(name: str) -> SensorKind:
         studies = tuple(_attribute(ref) for ref in BUILTIN_STUDY_STAGES.get(name, ()))
         if studies and name in _KINDS:
             k = _KINDS[name]
-            register_kind(name, k.sensor_model, k.stages + studies, k.check)
+            register_kind(name, k.sensor_model, k.stages + studies, k.check, k.warnings)
     if name not in _KINDS:
         raise KeyError(f'sensor.kind = "{name}": unknown sensor kind; choose from: {", ".join(kinds())}')
     return _KINDS[name]
