@@ -137,6 +137,7 @@ class _LoggedSteps:
     a move longer than 0.6 (in x) fails, a shorter one lands at the start plus the move."""
 
     contact_solver, _fresh_first, _condensed, fallbacks, max_penetration_m, k_n = "admm", False, None, 0, 1.0, 1.0
+    _adopts = False  # quasi-static: a fresh linearisation serves its step only
 
     def __init__(self):
         self.starts = []
