@@ -18,7 +18,8 @@ from dataclasses import dataclass
 from mlsim.cost_model import GB, StageCost, stage_cost
 from mlsim.errors import Problem, SceneError
 
-__all__ = ["RunEstimate", "estimate", "enforce", "machine_memory_bytes", "default_max_memory_gb", "MEMORY_FRACTION", "BASE_BYTES"]
+__all__ = ["RunEstimate", "estimate", "enforce", "machine_memory_bytes", "default_max_memory_gb", "MEMORY_FRACTION", "BASE_BYTES",
+           "bytes_text", "duration_text"]
 
 # Half the machine by default: a run shares it (the other agents of a shared machine, the other
 # workers of a sweep or a dataset, each its own run), and the estimate is good to a factor of two.
@@ -57,7 +58,7 @@ class RunEstimate:
 
     def headline(self) -> str:
         unmodelled = [name for name, c in self.rows if c is None]
-        return (f"estimate: {_duration(self.seconds)} and {self.memory_bytes / GB:.2g} GB peak for {len(self.rows)} stage(s) to run"
+        return (f"estimate: {duration_text(self.seconds)} and {self.memory_bytes / GB:.2g} GB peak for {len(self.rows)} stage(s) to run"
                 + (f" ({', '.join(unmodelled)}: not modelled)" if unmodelled else "") + " (mlsim.cost_model, 2 cores; within 2x)")
 
     def table(self) -> list[str]:
@@ -66,9 +67,9 @@ class RunEstimate:
             if c is None:
                 lines.append(f"  {name:<12} {'':>8} {'':>8} {'':>9} {'-':>10} {'-':>10}  no cost model")
                 continue
-            lines.append(f"  {name:<12} {_n(c.frames):>8} {_n(c.steps):>8} {_n(c.tets):>9} {_bytes(c.memory_bytes):>10} "
-                         f"{_duration(c.seconds):>10}  {c.note}".rstrip())
-        lines.append(f"  {'total':<12} {self.frames:>8} {'':>8} {'':>9} {_bytes(self.memory_bytes):>10} {_duration(self.seconds):>10}"
+            lines.append(f"  {name:<12} {_n(c.frames):>8} {_n(c.steps):>8} {_n(c.tets):>9} {bytes_text(c.memory_bytes):>10} "
+                         f"{duration_text(c.seconds):>10}  {c.note}".rstrip())
+        lines.append(f"  {'total':<12} {self.frames:>8} {'':>8} {'':>9} {bytes_text(self.memory_bytes):>10} {duration_text(self.seconds):>10}"
                      "  (memory: every stage's result is kept, plus the interpreter)")
         return lines
 
@@ -104,11 +105,13 @@ def _n(value) -> str:
     return "" if value is None else f"{value:,}"
 
 
-def _bytes(value: float) -> str:
+def bytes_text(value: float) -> str:
+    """``value`` bytes as MB or GB (3 figures)."""
     return f"{value / GB:.3g} GB" if value >= 0.1 * GB else f"{value / 1024**2:.3g} MB"
 
 
-def _duration(seconds: float) -> str:
+def duration_text(seconds: float) -> str:
+    """``seconds`` as s, min or h (3 figures)."""
     if seconds < 120:
         return f"{seconds:.3g} s"
     if seconds < 7200:
