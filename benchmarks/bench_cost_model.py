@@ -13,6 +13,14 @@ Measured 2026-11-27 11:15-11:43 (2 cores shared with other jobs, load 8-11), the
 estimate / measured over the whole run, time against CPU seconds (against wall seconds), and peak memory:
 tiny to the camera 38.8 s: 1.06 (0.15), 1.49 GB against 1.43; default demo 171 s: 0.79 (0.29), 2.73 GB
 against 2.59; screw scene 281 s: 0.95 (0.97), 3.06 GB against 2.36.
+
+The sibling kinds (``--siblings``: their cheap scenes, each stage priced by its kind's ``cost`` hook), measured
+2026-11-27 20:48-20:52 (2 shared cores, numba's kernels already compiled: a first run in a fresh checkout
+spends seconds compiling them), estimate / measured time (CPU) and peak memory: sole/balance_push.toml 0.29 s
+against 0.40 (0.72), 0.13 GB against 0.132; sole/balance_sweep.toml 2.9 s against 1.9 (1.53), 0.134 against
+0.134 GB; cls/general.toml 4.48 s against 3.2 (1.40; calibrate 1.48, signals 1.13, estimate 1.22), 0.149 GB
+against 0.183; anyskin/headon_push.toml to anyskin_signals 1.59 s against 1.15 CPU s (1.38), 0.367 GB
+against 0.261.
 """
 
 from __future__ import annotations
@@ -30,6 +38,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CASES = (("scenes/mavig_tiny.toml", "camera"), ("scenes/mavig_default.toml", ""), ("scenes/interactions/screw.toml", ""))
+#: the sibling kinds' cheap scenes (--siblings): their kinds' cost hooks (other_sensors/<kind>/plausibility.py)
+SIBLING_CASES = (("scenes/sole/balance_push.toml", ""), ("scenes/sole/balance_sweep.toml", ""), ("scenes/cls/general.toml", ""),
+                 ("scenes/anyskin/headon_push.toml", "anyskin_signals"))
 
 
 def child(scene_path: str, outputs: str, cache_dir: str) -> None:
@@ -66,13 +77,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scene", action="append", help="scene file (repeat; default: tiny (to the camera), default demo, screw)")
     parser.add_argument("--outputs", action="append", help="outputs per --scene, comma-separated ('' = the scene's)")
+    parser.add_argument("--siblings", action="store_true", help="the sibling kinds' cheap scenes instead of the default cases")
     parser.add_argument("--shipped-meshes", action="store_true", help="seed the cache with tests/data/meshes (meshing not measured)")
     parser.add_argument("--out", default="out/bench")
     parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         return child(*args.child)
-    cases = list(zip(args.scene, args.outputs or [""] * len(args.scene))) if args.scene else list(DEFAULT_CASES)
+    cases = (list(zip(args.scene, args.outputs or [""] * len(args.scene))) if args.scene
+             else list(SIBLING_CASES if args.siblings else DEFAULT_CASES))
     print(f"# {platform.node()}, {os.cpu_count()} CPUs, {time.strftime('%Y-%m-%d %H:%M')}; each scene in a fresh process, empty cache"
           + (" (shipped meshes seeded)" if args.shipped_meshes else ""))
     results = []

@@ -317,7 +317,8 @@ def cmd_sweep(args) -> int:
         from mlsim.dry_run import sweep_plan
         from mlsim.sweep.variants import variants
 
-        return sweep_plan(scene, variants(scene, varies, "zip" if args.zip else "grid"), out, loads, wanted, args.workers)
+        return sweep_plan(scene, variants(scene, varies, "zip" if args.zip else "grid"), out, loads, wanted, args.workers, cache=_cache(args),
+                          direction=direction, angles=tuple(args.angles), escalate_to=None if args.escalate_tier == "none" else args.escalate_tier)
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))
     try:
         summary = sweep(scene, varies, out, mode="zip" if args.zip else "grid", loads=loads, direction=direction, angles=tuple(args.angles),

@@ -18,7 +18,10 @@ The sizes follow from the scene alone:
 - frames and solve steps: :func:`fem.trajectory.time_grid`'s rule (the load's duration rounded up
   to a frame, plus the first frame and one after), steps ``1 + (frames - 1) substeps``.
 
-A stage without a model here (the sibling kinds' stages, cheap stages) is listed with no estimate.
+A stage without a model (a cheap stage, one never measured) is listed with no estimate. The other
+sensor kinds price their own stages through the kind's ``cost`` hook (:class:`mlsim.stage.SensorKind`;
+the sibling kinds' in ``other_sensors/<kind>/plausibility.py``, from their measured bytes and seconds
+per sample or tick), which :func:`stage_cost` calls: this module imports no kind.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["StageCost", "episode_frames", "idle_frames", "solve_steps", "estimated_tets", "stage_cost", "STAGE_MODELS", "GB"]
+__all__ = ["StageCost", "episode_frames", "idle_frames", "solve_steps", "estimated_tets", "stage_cost", "process_bytes", "STAGE_MODELS", "GB"]
 
 GB = 1024**3
 
@@ -81,12 +84,20 @@ CAMERA_BYTES_PER_NATIVE_PIXEL = 8 * 4
 CAMERA_S_PER_NATIVE_PIXEL = 1.2e-8  # the default demo's 52 frames: 1.3 CPU s, the tiny scene's 38: 1.8
 # Mitsuba's and numpy's own footprint once imported (a process that renders)
 RENDER_PROCESS_BYTES = 1.0 * GB
+# a run's process before any stage's result: python, numpy, scipy, pydantic and the project's modules,
+# about 0.3 GB resident with the ml_rod_array kind's stage code; a sibling kind's run measured 0.13 GB
+# max RSS in all (scenes/sole/balance_push.toml and balance_sweep.toml, bench_cost_model --siblings,
+# 2026-11-27: 0.132 and 0.134 GB), its stages' results a few MB
+ML_PROCESS_BYTES = 0.3 * GB
+INTERPRETER_BYTES = 0.13 * GB
 
 
 @dataclass(frozen=True)
 class StageCost:
-    """One stage's expected cost: ``memory_bytes`` (the peak it adds), ``seconds`` (wall time on
-    2 cores), and the sizes they come from (frames, solve steps, tets; None where not relevant)."""
+    """One stage's expected cost: ``memory_bytes`` (the peak it adds and keeps: its result),
+    ``seconds`` (wall time on 2 cores), the sizes they come from (frames, solve steps, tets; None where
+    not relevant), and ``transient_bytes``, what it holds only while it runs (a study's re-simulated
+    traces, freed before the next stage; :class:`mlsim.run_budget.RunEstimate` counts the largest)."""
 
     stage: str
     memory_bytes: float
@@ -95,6 +106,7 @@ class StageCost:
     steps: int | None = None
     tets: int | None = None
     note: str = ""
+    transient_bytes: float = 0.0
 
 
 def episode_frames(duration_s: float, fps: float, extra_frames: int = 1) -> float:
@@ -205,6 +217,11 @@ def _calibration(scene) -> StageCost:
     return StageCost("calibration", 0.2 * GB + pixels * 3 * 8, 0.5 + pixels * 1e-6)
 
 
+def process_bytes(scene) -> float:
+    """The run's process before any stage's result (bytes): the interpreter and the kind's libraries."""
+    return ML_PROCESS_BYTES if scene.kind == "ml_rod_array" else INTERPRETER_BYTES
+
+
 def _int(value: float) -> int | None:
     return int(value) if math.isfinite(value) and value < 2**62 else None
 
@@ -214,9 +231,15 @@ STAGE_MODELS = {"mesh": _mesh, "solve": _solve, "emission": _emission, "render":
 
 
 def stage_cost(scene, stage: str) -> StageCost | None:
-    """The expected cost of running ``stage`` on ``scene``; None where no model applies (another
-    sensor kind's stage, a stage whose cost is negligible, a scene without the section it needs)."""
+    """The expected cost of running ``stage`` on ``scene``; None where no model applies (a stage whose
+    cost is negligible or not measured, a scene without the section it needs). Another sensor kind's
+    stages are priced by its ``cost`` hook (None without one)."""
+    if scene.kind != "ml_rod_array":
+        from mlsim.stage import kind
+
+        hook = kind(scene.kind).cost
+        return hook(scene, stage) if hook is not None else None
     model = STAGE_MODELS.get(stage)
-    if model is None or scene.kind != "ml_rod_array" or (stage not in ("mesh", "calibration") and scene.load is None):
+    if model is None or (stage not in ("mesh", "calibration") and scene.load is None):
         return None
     return model(scene)

@@ -55,14 +55,54 @@ def dataset_plan(spec, base, out: Path, workers: int, executor: str) -> int:
     return 0
 
 
-def sweep_plan(scene, variants, out: Path, loads, wanted, workers: int) -> int:
-    """A sweep's variants (refused ones with the reason), the loads and metrics, what ``out`` holds."""
-    from mlsim.sweep.run import stored_records
+def sweep_plan(scene, variants, out: Path, loads, wanted, workers: int, cache=None, direction=None, angles=None,
+               escalate_to: str | None = "nonlinear") -> int:
+    """A sweep's variants (refused ones with the reason), the loads and metrics, what ``out`` holds, and
+    each variant's cost to run (:mod:`mlsim.sweep.cost`): per load, the calibration frame and the
+    direction study the time and peak memory expected, per load the nonlinear tier's solve "if
+    escalated" with the proxy's flag, and the sweep's total on ``workers``."""
+    from mlsim.run_budget import bytes_text, duration_text
+    from mlsim.sweep.cost import ESCALATING_SLENDERNESS, NOMINAL_SLENDERNESS, slenderness, sweep_cost, sweep_wall_s
+    from mlsim.sweep.run import DEFAULT_ANGLES, DEFAULT_LOADS, read_load, stored_records
 
     stored = stored_records(out)
+    loads = [read_load(p) for p in DEFAULT_LOADS] if loads is None else loads
+    angles = DEFAULT_ANGLES if angles is None else angles
     print(f"sweep of {scene.name}: {len(variants)} variant(s) into {out}, {len(stored)} already stored; metrics {', '.join(wanted)}; "
-          f"loads {', '.join(l.name for l in loads) if loads else 'scenes/press.toml, scenes/swipe.toml'}; {workers} worker(s)")
+          f"loads {', '.join(l.name for l in loads)}; {workers} worker(s)")
+    costs = {c.variant.variant_id: c for c in sweep_cost(variants, loads, wanted, direction, angles, cache, escalate_to, skip=set(stored))}
     for v in variants:
         state = "stored" if v.variant_id in stored else ("refused: " + v.reason if v.reason else "to run")
-        print(f"  {v.variant_id}  {v.label:<40} {state}")
+        c = costs.get(v.variant_id)
+        cost = f"; {duration_text(c.seconds)}, {bytes_text(c.memory_bytes)} peak" if c is not None else ""
+        print(f"  {v.variant_id}  {v.label:<40} {state}{cost}")
+        for p in c.parts if c is not None else ():
+            modelled, unmodelled = p.stages()
+            what = ", ".join(modelled) or "nothing new to run"
+            runs = sum(1 for r in p.runs if r.rows)
+            print(f"      {p.name:<22} {duration_text(p.seconds):>9} {bytes_text(p.memory_bytes):>9}  {f'{runs} runs of ' if runs > 1 else ''}{what}"
+                  + (f" ({', '.join(unmodelled)}: not modelled)" if unmodelled else ""))
+            if p.escalated is not None:
+                e = p.escalated
+                flag = {"likely": f"LIKELY to escalate: rods {v.scene.sensor.rod.height_mm:g} x {v.scene.sensor.rod.diameter_mm:g} mm, "
+                                  f"slenderness {slenderness(v.scene):.3g} >= {ESCALATING_SLENDERNESS:.3g}",
+                        "possible": f"may escalate: slenderness {slenderness(v.scene):.3g} > the published rods' {NOMINAL_SLENDERNESS:.3g}",
+                        }.get(p.risk, "not expected to escalate")
+                print(f"      {'':<22} if escalated: +{duration_text(e.seconds)}, {bytes_text(p.escalated_memory_bytes)} peak "
+                      f"(nonlinear, backward Euler, {p.substeps} substeps: {e.steps} steps, {e.tets} tets); {flag}")
+    if costs:
+        vc = list(costs.values())
+        wall = sweep_wall_s([c.seconds for c in vc], workers)
+        wall_esc = sweep_wall_s([c.escalated_seconds for c in vc], workers)
+        busy = min(max(int(workers), 1), len(vc))
+        peak = busy * max(c.memory_bytes for c in vc)
+        peak_esc = busy * max(c.escalated_memory_bytes for c in vc)
+        flagged = sum(1 for c in vc for p in c.parts if p.risk)
+        print(f"  total: {duration_text(sum(c.seconds for c in vc))} of work, {duration_text(wall)} on {workers} worker(s), "
+              f"{bytes_text(peak)} peak ({busy} variant(s) at once)"
+              + (f"; with the {flagged} flagged load(s) escalated: {duration_text(wall_esc)}, {bytes_text(peak_esc)} peak" if flagged else ""))
+        print("  (estimates: mlsim.cost_model, 2 cores, within 2x; stages cached or shared by an earlier variant counted once. "
+              "Escalation flag: an estimate from the rods' slenderness against the swipe of scenes/swipe.toml (9 x 5 mm rods: "
+              "0.28 x their Euler load, 10.5 x 5 mm: 0.7-2.0 x); an escalated swipe in contact can take up to 5x its estimate, "
+              "mlsim.sweep.cost)")
     return 0

@@ -7,7 +7,9 @@ budget (``--max-memory-gb``, by default ``MEMORY_FRACTION`` of this machine's me
 given, a frame budget (``--max-frames``); ``--over-budget`` runs it anyway.
 
 The run keeps every stage's result until it ends (:func:`mlsim.pipeline.run`), so its expected peak
-is the sum of the stages' memory, plus the interpreter and the libraries it imports (``BASE_BYTES``).
+is the sum of the stages' memory (and the largest a stage holds only while it runs), plus the
+interpreter and the libraries it imports (:func:`mlsim.cost_model.process_bytes`: ``BASE_BYTES`` for
+the ml_rod_array kind, less for the sibling kinds).
 """
 
 from __future__ import annotations
@@ -15,16 +17,17 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from mlsim.cost_model import GB, StageCost, stage_cost
+from mlsim.cost_model import GB, ML_PROCESS_BYTES, StageCost, process_bytes, stage_cost
 from mlsim.errors import Problem, SceneError
 
-__all__ = ["RunEstimate", "estimate", "enforce", "machine_memory_bytes", "default_max_memory_gb", "MEMORY_FRACTION", "BASE_BYTES"]
+__all__ = ["RunEstimate", "estimate", "enforce", "machine_memory_bytes", "default_max_memory_gb", "MEMORY_FRACTION", "BASE_BYTES",
+           "bytes_text", "duration_text"]
 
 # Half the machine by default: a run shares it (the other agents of a shared machine, the other
 # workers of a sweep or a dataset, each its own run), and the estimate is good to a factor of two.
 MEMORY_FRACTION = 0.5
-# python, numpy, scipy, pydantic and the project's modules imported: about 0.3 GB resident
-BASE_BYTES = 0.3 * GB
+# python, numpy, scipy, pydantic and the project's modules imported: about 0.3 GB resident (the ML kind's run)
+BASE_BYTES = ML_PROCESS_BYTES
 
 
 def machine_memory_bytes() -> float:
@@ -39,13 +42,16 @@ def default_max_memory_gb() -> float:
 
 @dataclass(frozen=True)
 class RunEstimate:
-    """The stages to run with their costs (None: no cost model for that stage) and the totals."""
+    """The stages to run with their costs (None: no cost model for that stage) and the totals;
+    ``base_bytes``: the process before any stage's result."""
 
     rows: tuple[tuple[str, StageCost | None], ...]
+    base_bytes: float = BASE_BYTES
 
     @property
     def memory_bytes(self) -> float:
-        return BASE_BYTES + sum(c.memory_bytes for _, c in self.rows if c is not None)
+        costs = [c for _, c in self.rows if c is not None]
+        return self.base_bytes + sum(c.memory_bytes for c in costs) + max((c.transient_bytes for c in costs), default=0.0)
 
     @property
     def seconds(self) -> float:
@@ -57,25 +63,26 @@ class RunEstimate:
 
     def headline(self) -> str:
         unmodelled = [name for name, c in self.rows if c is None]
-        return (f"estimate: {_duration(self.seconds)} and {self.memory_bytes / GB:.2g} GB peak for {len(self.rows)} stage(s) to run"
+        return (f"estimate: {duration_text(self.seconds)} and {self.memory_bytes / GB:.2g} GB peak for {len(self.rows)} stage(s) to run"
                 + (f" ({', '.join(unmodelled)}: not modelled)" if unmodelled else "") + " (mlsim.cost_model, 2 cores; within 2x)")
 
     def table(self) -> list[str]:
-        lines = [f"  {'stage':<12} {'frames':>8} {'steps':>8} {'tets':>9} {'memory':>10} {'time':>10}  note"]
+        w = max([12, *(len(name) for name, _ in self.rows)])
+        lines = [f"  {'stage':<{w}} {'frames':>8} {'steps':>8} {'tets':>9} {'memory':>10} {'time':>10}  note"]
         for name, c in self.rows:
             if c is None:
-                lines.append(f"  {name:<12} {'':>8} {'':>8} {'':>9} {'-':>10} {'-':>10}  no cost model")
+                lines.append(f"  {name:<{w}} {'':>8} {'':>8} {'':>9} {'-':>10} {'-':>10}  no cost model")
                 continue
-            lines.append(f"  {name:<12} {_n(c.frames):>8} {_n(c.steps):>8} {_n(c.tets):>9} {_bytes(c.memory_bytes):>10} "
-                         f"{_duration(c.seconds):>10}  {c.note}".rstrip())
-        lines.append(f"  {'total':<12} {self.frames:>8} {'':>8} {'':>9} {_bytes(self.memory_bytes):>10} {_duration(self.seconds):>10}"
+            lines.append(f"  {name:<{w}} {_n(c.frames):>8} {_n(c.steps):>8} {_n(c.tets):>9} {bytes_text(c.memory_bytes + c.transient_bytes):>10} "
+                         f"{duration_text(c.seconds):>10}  {c.note}".rstrip())
+        lines.append(f"  {'total':<{w}} {_n(self.frames or None):>8} {'':>8} {'':>9} {bytes_text(self.memory_bytes):>10} {duration_text(self.seconds):>10}"
                      "  (memory: every stage's result is kept, plus the interpreter)")
         return lines
 
 
 def estimate(scene, steps) -> RunEstimate:
     """The cost of the plan ``steps`` (:func:`mlsim.pipeline.plan`): the stages it runs."""
-    return RunEstimate(tuple((s.stage.name, stage_cost(scene, s.stage.name)) for s in steps if s.action == "run"))
+    return RunEstimate(tuple((s.stage.name, stage_cost(scene, s.stage.name)) for s in steps if s.action == "run"), process_bytes(scene))
 
 
 def enforce(est: RunEstimate, max_memory_gb: float | None = None, max_frames: int | None = None, over_budget: bool = False) -> None:
@@ -104,11 +111,13 @@ def _n(value) -> str:
     return "" if value is None else f"{value:,}"
 
 
-def _bytes(value: float) -> str:
+def bytes_text(value: float) -> str:
+    """``value`` bytes as MB or GB (3 figures)."""
     return f"{value / GB:.3g} GB" if value >= 0.1 * GB else f"{value / 1024**2:.3g} MB"
 
 
-def _duration(seconds: float) -> str:
+def duration_text(seconds: float) -> str:
+    """``seconds`` as s, min or h (3 figures)."""
     if seconds < 120:
         return f"{seconds:.3g} s"
     if seconds < 7200:

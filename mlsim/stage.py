@@ -57,14 +57,17 @@ class Stage:
 class SensorKind:
     """A sensor kind: its name (``sensor.kind``), the pydantic model of its ``[sensor]`` section, its
     stages (each after the stages it needs) and an optional ``check(scene) -> [(field, value,
-    reason)]`` of the scene's consistency beyond the schema (run by ``mlsim check`` and on load), and an
-    optional ``warnings(scene) -> [str]`` of what is plausible but expensive (printed by ``mlsim check``)."""
+    reason)]`` of the scene's consistency beyond the schema (run by ``mlsim check`` and on load), an
+    optional ``warnings(scene) -> [str]`` of what is plausible but expensive (printed by ``mlsim check``),
+    and an optional ``cost(scene, stage_name) -> StageCost | None``, the expected cost of running one of
+    its stages (:func:`mlsim.cost_model.stage_cost`, printed by ``mlsim run --dry-run``; None: not modelled)."""
 
     name: str
     sensor_model: type
     stages: tuple[Stage, ...]
     check: Callable[[Any], list] | None = None
     warnings: Callable[[Any], list] | None = None
+    cost: Callable[[Any, str], Any] | None = None
 
     @property
     def stage_map(self) -> dict[str, Stage]:
@@ -88,7 +91,7 @@ _KINDS: dict[str, SensorKind] = {}
 
 
 def register_kind(name: str, sensor_model: type, stages, check: Callable[[Any], list] | None = None,
-                  warnings: Callable[[Any], list] | None = None) -> SensorKind:
+                  warnings: Callable[[Any], list] | None = None, cost: Callable[[Any, str], Any] | None = None) -> SensorKind:
     """Register (or replace) a sensor kind. The stages' ``needs`` must name earlier stages of the
     kind, and stage names must be unique: a ``ValueError`` says which is wrong."""
     stages = tuple(stages)
@@ -100,7 +103,7 @@ def register_kind(name: str, sensor_model: type, stages, check: Callable[[Any], 
         if missing:
             raise ValueError(f"sensor kind {name!r}: stage {s.name!r} needs {missing}, which must be registered before it")
         seen.add(s.name)
-    _KINDS[name] = SensorKind(name, sensor_model, stages, check, warnings)
+    _KINDS[name] = SensorKind(name, sensor_model, stages, check, warnings, cost)
     return _KINDS[name]
 
 
@@ -121,7 +124,7 @@ def kind(name: str) -> SensorKind:
         studies = tuple(_attribute(ref) for ref in BUILTIN_STUDY_STAGES.get(name, ()))
         if studies and name in _KINDS:
             k = _KINDS[name]
-            register_kind(name, k.sensor_model, k.stages + studies, k.check, k.warnings)
+            register_kind(name, k.sensor_model, k.stages + studies, k.check, k.warnings, k.cost)
     if name not in _KINDS:
         raise KeyError(f'sensor.kind = "{name}": unknown sensor kind; choose from: {", ".join(kinds())}')
     return _KINDS[name]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from mlsim.stage import register_kind
 
-from .plausibility import warnings
+from .plausibility import stage_cost, warnings
 from .schema import MAX_ANGULAR_RATE_DEG_S, AnySkinSensor
 from .stages import BENCH, CONTACT, DRIFT, PITCH, SIGNALS
 
@@ -55,6 +55,6 @@ def _check(scene) -> list:
     return problems
 
 
-KIND = register_kind("anyskin", AnySkinSensor, [SIGNALS, CONTACT, DRIFT, PITCH, BENCH], check=_check, warnings=warnings)
+KIND = register_kind("anyskin", AnySkinSensor, [SIGNALS, CONTACT, DRIFT, PITCH, BENCH], check=_check, warnings=warnings, cost=stage_cost)
 """The Head-On helmet of SPEC 2: four AnySkin magnetic skins in an X on a quadruped's pitched helmet face,
 pushed against a force plate while walking; ``other_sensors.anyskin.kind`` registers the ``anyskin`` kind."""

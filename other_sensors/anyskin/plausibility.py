@@ -15,18 +15,21 @@ field, the value, the limit and the fix:
   takes per sample (measured), passes :data:`mlsim.plausibility.MAX_RUN_MEMORY_GB`.
 
 :func:`warnings` lists the run that is plausible but expensive (the studies re-simulate the trace
-once per face pitch, per drift factor and per truth), with its estimate.
+once per face pitch, per drift factor and per truth), with its estimate; :func:`stage_cost` prices each
+stage that simulates traces for ``mlsim run --dry-run`` (the kind's ``cost`` hook), from the same
+measurements (the contact estimator and the bench's training are not measured: not modelled).
 """
 
 from __future__ import annotations
 
-from mlsim.cost_model import GB
+from mlsim.cost_model import GB, StageCost
 from mlsim.plausibility import MAX_RUN_MEMORY_GB, cost_warnings, memory_problem
 
 from .schema import RATE_HZ, SKIN_GRID
 
 __all__ = ["N_PADS", "BYTES_PER_SAMPLE_COLUMN", "SECONDS_PER_SAMPLE_COLUMN", "SHIPPED_DURATION_S", "problems", "warnings",
-           "least_pad_travel_mm", "simulations", "traces_held", "run_cost"]
+           "least_pad_travel_mm", "simulations", "traces_held", "run_cost", "stage_cost", "traces_of_stage",
+           "STAGE_SECONDS_PER_SAMPLE_COLUMN"]
 
 N_PADS = 4  # SPEC 2: four skins in an X, each on its pad
 # Measured (tracemalloc peak of anyskin_signals, this machine, scenes/anyskin/push_study.toml at 750-3,000
@@ -36,6 +39,11 @@ BYTES_PER_SAMPLE_COLUMN = 720.0
 # Measured the same way (wall, 2 shared cores): 4.5-14 us a sample and column over both truths and
 # grids 7-28 (the small grids carry a fixed cost per sample): the larger.
 SECONDS_PER_SAMPLE_COLUMN = 14e-6
+# Per truth for the dry run's estimate (wall of anyskin_signals, headon_push.toml's 1,800 samples, 2 shared
+# cores, 2026-11-27): the point dipoles 4.5, 3.7 and 4.1 us a sample and column at grids 7, 14 and 28; the
+# magnet volume 9.8 and 7.4 at grids 7 and 14: the larger of each (SECONDS_PER_SAMPLE_COLUMN, the larger
+# of both, stays the warnings' bound)
+STAGE_SECONDS_PER_SAMPLE_COLUMN = {"point_dipole": 4.5e-6, "magnet_volume": 10e-6}
 # The shipped head-on push's trace (scenes/anyskin/headon_push.toml): the reference the field
 # named in a refusal is measured against (see _largest_factor)
 SHIPPED_DURATION_S = 12.0
@@ -69,6 +77,30 @@ def run_cost(scene) -> tuple[float, float, float]:
     n = s.trajectory.duration_s * s.magnetometers.rate_hz
     columns = s.skin.grid * s.skin.grid
     return n, n * columns * BYTES_PER_SAMPLE_COLUMN * traces_held(scene), n * columns * SECONDS_PER_SAMPLE_COLUMN * simulations(scene)
+
+
+def traces_of_stage(stage: str) -> int:
+    """How many helmet traces ``stage`` simulates (0: it simulates none)."""
+    from .study import PITCHES_DEG, SWEEP_FACTORS, TRUTHS
+
+    return {"anyskin_signals": 1, "anyskin_pitch": len(PITCHES_DEG), "anyskin_drift": len(SWEEP_FACTORS),
+            "anyskin_bench": len(TRUTHS)}.get(stage, 0)
+
+
+def stage_cost(scene, stage: str) -> StageCost | None:
+    """The expected cost of running ``stage`` (the kind's ``cost`` hook, :func:`mlsim.cost_model.stage_cost`):
+    its traces x samples x the skin's dipole columns x the bytes and seconds a sample and column takes
+    (measured, above); a study holds one trace at a time, beside the cached anyskin_signals one."""
+    traces = traces_of_stage(stage)
+    if traces == 0:
+        return None
+    s = scene.sensor
+    n, columns = s.trajectory.duration_s * s.magnetometers.rate_hz, s.skin.grid * s.skin.grid
+    trace = n * columns * BYTES_PER_SAMPLE_COLUMN
+    kept, transient = (trace, 0.0) if stage == "anyskin_signals" else (0.0, trace)  # a study keeps its table only
+    per_s = STAGE_SECONDS_PER_SAMPLE_COLUMN.get(s.skin.truth, SECONDS_PER_SAMPLE_COLUMN)
+    return StageCost(stage, kept, traces * n * columns * per_s, transient_bytes=transient,
+                     note=f"{traces} trace(s) of {n:.4g} samples, grid {s.skin.grid}, {s.skin.truth}")
 
 
 def _largest_factor(sensor) -> tuple[str, float]:

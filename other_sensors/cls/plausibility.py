@@ -20,7 +20,8 @@ The amplitudes judged are those the run moves: the calibration (``cls_calibrate`
 only its ``shape``'s. The general motion's sines (:func:`other_sensors.cls.shell.trajectory`) are
 bounded by the amplitudes and may reach them together, so its corners are judged.
 
-:func:`warnings` lists the work that is plausible but expensive, with its estimate.
+:func:`warnings` lists the work that is plausible but expensive, with its estimate; :func:`stage_cost`
+prices each stage for ``mlsim run --dry-run`` (the kind's ``cost`` hook), from the same measurements.
 """
 
 from __future__ import annotations
@@ -29,12 +30,14 @@ import math
 
 import numpy as np
 
-from mlsim.cost_model import GB
+from mlsim.cost_model import GB, StageCost
 from mlsim.plausibility import MAX_RUN_MEMORY_GB, cost_warnings, memory_problem
 
 __all__ = ["MAX_PILLAR_SHEAR_STRAIN", "SIGNAL_BYTES_PER_SAMPLE_PAIR", "CALIBRATION_BYTES_PER_POSE_PAIR", "SIGNAL_SECONDS_PER_SAMPLE",
            "ESTIMATE_SECONDS_PER_SAMPLE", "CALIBRATION_SECONDS_PER_POSE", "problems", "warnings", "lowest_mount_mm",
-           "max_rotation_deg", "moved_amplitudes", "run_cost"]
+           "max_rotation_deg", "moved_amplitudes", "run_cost", "stage_cost", "SIGNALS_STAGE_BYTES_PER_SAMPLE_PAIR",
+           "ESTIMATE_STAGE_BYTES_PER_SAMPLE_PAIR", "SIGNALS_STAGE_FIXED_S", "ESTIMATE_STAGE_FIXED_S", "ESTIMATE_STAGE_SECONDS_PER_SAMPLE",
+           "CALIBRATE_STAGE_SECONDS_PER_POSE"]
 
 # A pillar's top offset sideways by its own height: a pillar that kept its length would lie flat on
 # the base. The model's linear shear law and its neglect of the pillars' bending (shell.py) hold for
@@ -44,6 +47,9 @@ MAX_PILLAR_SHEAR_STRAIN = 1.0
 # 5 pairs, the optical truth): cls_signals 561 B and cls_estimate 436 B a sample, held together (the
 # estimate reads the signals): about 200 B a sample and pair.
 SIGNAL_BYTES_PER_SAMPLE_PAIR = 200.0
+# the same two measurements per stage (5 pairs): cls_signals 561 / 5, cls_estimate 436 / 5
+SIGNALS_STAGE_BYTES_PER_SAMPLE_PAIR = 561.0 / 5
+ESTIMATE_STAGE_BYTES_PER_SAMPLE_PAIR = 436.0 / 5
 # Measured the same way: cls_calibrate 4,183-4,320 B a reference pose of 5 pairs (its LM's Jacobian
 # rows and the optical voltages): about 860 B a pose and pair.
 CALIBRATION_BYTES_PER_POSE_PAIR = 860.0
@@ -52,6 +58,15 @@ CALIBRATION_BYTES_PER_POSE_PAIR = 860.0
 SIGNAL_SECONDS_PER_SAMPLE = 12.5e-6
 ESTIMATE_SECONDS_PER_SAMPLE = 75e-6
 CALIBRATION_SECONDS_PER_POSE = 2e-3
+# Per stage for the dry run's estimate (wall, 2 shared cores, 2026-11-27, general.toml at 4,000 and 16,000
+# samples, numba's kernels compiled): cls_signals 0.73 and 0.93 s, a fixed 0.6 s (the optics' set-up)
+# then SIGNAL_SECONDS_PER_SAMPLE; cls_estimate 0.17 and 0.27 s, 0.15 s then 10 us a sample (the
+# 75 us above, an LM solve a sample, stays the warnings' bound); cls_calibrate 2.1-3.3 s at 2,960 poses
+# and 6.8 s at 5,920: 0.7-1.15 ms a pose, the larger rounded up (the 2 ms above stays the warnings' bound)
+SIGNALS_STAGE_FIXED_S = 0.6
+ESTIMATE_STAGE_FIXED_S = 0.15
+ESTIMATE_STAGE_SECONDS_PER_SAMPLE = 10e-6
+CALIBRATE_STAGE_SECONDS_PER_POSE = 1.2e-3
 
 
 def moved_amplitudes(scene) -> set[str]:
@@ -135,6 +150,24 @@ def run_cost(scene) -> dict[str, tuple[float, float, float]]:
         n = s.calibration.duration_s * s.calibration.rate_hz
         out["calibration"] = (n, n * pairs * CALIBRATION_BYTES_PER_POSE_PAIR, n * CALIBRATION_SECONDS_PER_POSE)
     return out
+
+
+def stage_cost(scene, stage: str) -> StageCost | None:
+    """The expected cost of running ``stage`` (the kind's ``cost`` hook, :func:`mlsim.cost_model.stage_cost`):
+    its samples (trajectory or calibration poses) x the bytes and seconds one takes (measured, above)."""
+    s = scene.sensor
+    pairs = s.pairs.n
+    if stage in ("cls_signals", "cls_estimate"):
+        n = s.trajectory.duration_s * s.trajectory.rate_hz
+        per_bytes, fixed_s, per_s = ((SIGNALS_STAGE_BYTES_PER_SAMPLE_PAIR, SIGNALS_STAGE_FIXED_S, SIGNAL_SECONDS_PER_SAMPLE)
+                                     if stage == "cls_signals" else
+                                     (ESTIMATE_STAGE_BYTES_PER_SAMPLE_PAIR, ESTIMATE_STAGE_FIXED_S, ESTIMATE_STAGE_SECONDS_PER_SAMPLE))
+        return StageCost(stage, n * pairs * per_bytes, fixed_s + n * per_s, note=f"{n:.4g} samples of {pairs} pairs")
+    if stage == "cls_calibrate":
+        n = s.calibration.duration_s * s.calibration.rate_hz
+        return StageCost(stage, n * pairs * CALIBRATION_BYTES_PER_POSE_PAIR, n * CALIBRATE_STAGE_SECONDS_PER_POSE,
+                         note=f"{n:.4g} reference poses of {pairs} pairs")
+    return None
 
 
 def _size_problems(scene) -> list[tuple]:

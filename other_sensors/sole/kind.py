@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from mlsim.stage import register_kind
 
-from .plausibility import warnings
+from .plausibility import stage_cost, warnings
 from .schema import SoleSensor
 from .stages import BALANCE, BALANCE_SWEEP, CONTACT, DOUBLE_SUPPORT, FEASIBILITY, OBSTACLE_TABLE, check
 
 __all__ = ["SoleSensor", "KIND"]
 
 KIND = register_kind("plantar_sole", SoleSensor, [CONTACT, FEASIBILITY, OBSTACLE_TABLE, DOUBLE_SUPPORT, BALANCE, BALANCE_SWEEP],
-                     check=check, warnings=warnings)
+                     check=check, warnings=warnings, cost=stage_cost)

@@ -18,7 +18,9 @@ field, the value, the limit and the fix:
 - a balance study whose memory (ticks x pushes x the bytes a tick takes, measured) passes
   :data:`mlsim.plausibility.MAX_RUN_MEMORY_GB`.
 
-:func:`warnings` lists the balance runs that are plausible but expensive, with their estimate.
+:func:`warnings` lists the balance runs that are plausible but expensive, with their estimate;
+:func:`stage_cost` prices the balance stages for ``mlsim run --dry-run`` (the kind's ``cost`` hook),
+from the same measurements (the contact stages, milliseconds a foot, are not modelled).
 """
 
 from __future__ import annotations
@@ -27,14 +29,14 @@ import math
 
 import numpy as np
 
-from mlsim.cost_model import GB
+from mlsim.cost_model import GB, StageCost
 from mlsim.plausibility import MAX_RUN_MEMORY_GB, cost_warnings, memory_problem
 
 from .estimators import G
 from .schema import FOUNDATION_STIFFNESS_N_M3
 
 __all__ = ["SKIN_THICKNESS_MM", "BYTES_PER_TICK", "SECONDS_PER_TICK", "problems", "warnings", "least_sink_mm", "feet", "balance_runs",
-           "balance_ticks"]
+           "balance_ticks", "stage_cost"]
 
 # The skin's depth (cells, force sensors' foam, cover). A choice consistent with the foundation: a thin
 # layer's Winkler modulus is about E / h (Johnson, Contact Mechanics, 1985, sec. 5.9), and the default
@@ -138,6 +140,19 @@ def balance_runs(scene) -> int:
 def balance_ticks(scene) -> float:
     """The control ticks the balance stages run in all."""
     return balance_runs(scene) * scene.sensor.balance.duration_s * scene.sensor.balance.rate_hz
+
+
+def stage_cost(scene, stage: str) -> StageCost | None:
+    """The expected cost of running ``stage`` (the kind's ``cost`` hook, :func:`mlsim.cost_model.stage_cost`):
+    the balance loop's ticks (one run for sole_balance, one a push for sole_balance_sweep) x the bytes
+    and seconds a tick takes (measured, above); None for the other stages."""
+    runs = {"sole_balance": 1, "sole_balance_sweep": len(scene.sensor.balance_sweep.push_n)}.get(stage)
+    if runs is None:
+        return None
+    b = scene.sensor.balance
+    ticks = runs * b.duration_s * b.rate_hz
+    return StageCost(stage, ticks * BYTES_PER_TICK, ticks * SECONDS_PER_TICK,
+                     note=f"{runs} run(s) of {b.duration_s * b.rate_hz:.4g} ticks ({b.duration_s:g} s at {b.rate_hz:g} Hz)")
 
 
 def _balance_problems(scene) -> list[tuple]:
