@@ -68,6 +68,9 @@ def _patches(tet, area):
     return MLPatches(np.zeros((n, 3)), np.zeros((0, 3), np.int64), np.zeros((n, 3)), area, np.zeros(n, np.int64), np.zeros((n, 3)), tet)
 
 
+FLOAT32_ROUND_OFF = 1e-6  # a few float32 ulps (6e-8) of the stress the light is made from
+
+
 @pytest.mark.parametrize("model, params", [("detrapping", DetrappingParams(4e-6, 0.3)), ("stress_rate", StressRateParams(4e-6))])
 def test_emission_batched_equals_per_episode(model, params):
     rng = np.random.default_rng(3)
@@ -87,13 +90,16 @@ def test_emission_batched_equals_per_episode(model, params):
         ref = photon_rates(t, s, win, _patches(tet, area), model, params, "von_mises", B_ph, scale)
         expected = radiance_of(ref.photons_per_s, area)
         assert expected.max() > 0
-        np.testing.assert_allclose(rad[b, : len(win)], expected, rtol=1e-12, atol=1e-12 * expected.max())
+        # the same to float32 round-off: the von Mises stress is float32 in both paths, and a reduction's order
+        # may follow the threads a loaded machine gives it (8e-9 relative once on a clean clone's make test,
+        # identical in every rerun)
+        np.testing.assert_allclose(rad[b, : len(win)], expected, rtol=FLOAT32_ROUND_OFF, atol=FLOAT32_ROUND_OFF * expected.max())
         worst = max(worst, float(np.abs(rad[b, : len(win)] - expected).max() / expected.max()))
         assert np.all(rad[b, len(win):] == 0)  # padded frames: no light
         if model == "detrapping":
-            np.testing.assert_allclose(filled[b].numpy(), ref.filled_fraction, rtol=1e-12)
+            np.testing.assert_allclose(filled[b].numpy(), ref.filled_fraction, rtol=FLOAT32_ROUND_OFF)
             assert ref.filled_fraction.min() < 0.99  # the traps did deplete: the recurrence was exercised
-    assert worst < 1e-12
+    assert worst < FLOAT32_ROUND_OFF
 
 
 def test_von_mises_batched_is_the_compiled_kernels():
