@@ -398,17 +398,17 @@ class _Problem:
         state definite, and the next steps start near it. Quasi-static steps keep the first state's."""
         return ADOPT_UNDER_DYNAMICS and self.added is not None
 
-    def _step_linearised_at(self, x_lin, pose, pose_old, state, case, adopt: bool = False) -> tuple:
+    def _step_linearised_at(self, x_lin, pose, pose_old, state, case) -> tuple:
         """:meth:`condensed_step` from ``x_lin`` on the body linearised there; the kept linearisation is left
-        as it was unless ``adopt`` and the step converged (then the new one is kept). Returns (x, law,
-        seconds the linearisation took) or raises."""
+        as it was unless the step converged and the problem :attr:`_adopts` (then the new one is kept).
+        Returns (x, law, seconds the linearisation took) or raises."""
         kept = self._condensed
         try:
             seconds = time.perf_counter()
             self._condensed = CondensedBody(self, x_lin)
             seconds = time.perf_counter() - seconds
             x, law, _ = self.condensed_step(x_lin, pose, pose_old, state, case)
-            if adopt:
+            if self._adopts:
                 kept = self._condensed
             return x, law, seconds
         finally:
@@ -447,8 +447,8 @@ class _Problem:
             guess_n = x_start
             if self.contact_solver == "admm" and self._fresh_first and RELINEARISE_AT_START:
                 try:
-                    x, law, _ = self._step_linearised_at(x_start, p, p_old, st, case, adopt=self._adopts)
-                    self._fresh_first = self._fresh_first and not self._adopts
+                    x, law, _ = self._step_linearised_at(x_start, p, p_old, st, case)
+                    self._fresh_first = not self._adopts  # an adopted linearisation is the step's start already
                     return x, law
                 except (SolverError, FloatingPointError):
                     self._fresh_first = False
@@ -467,7 +467,7 @@ class _Problem:
                     if whole:
                         near = best[1] if best is not None and best[0] < 1.0 else x_start
                         try:
-                            x, law, t_lin = self._step_linearised_at(near, p, p_old, st, case, adopt=self._adopts)
+                            x, law, t_lin = self._step_linearised_at(near, p, p_old, st, case)
                             self._fresh_first = t_lin < t_try and not self._adopts
                             return x, law
                         except SolverError as again:

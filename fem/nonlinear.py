@@ -148,6 +148,45 @@ def residual_u(basis, mu_q: np.ndarray, p_q: np.ndarray, s: float, F: np.ndarray
     return np.bincount(basis.element_dofs.T.reshape(-1), weights=local.reshape(-1), minlength=basis.N)
 
 
+_LAYOUT: dict = {}
+
+
+def _kernel_layout(d: Discretisation) -> tuple:
+    """The arrays of :func:`fem.residual_kernels.element_residuals` for a P2P1 discretisation (kept for
+    one discretisation at a time): u_dofs (E, nb, 3), grads (E, Q, nb, 3), dx (E, Q), p_dofs (E, np),
+    psi (E, Q, np)."""
+    hit = _LAYOUT.get(id(d))
+    if hit is not None and hit[0] is d:
+        return hit[1]
+    b, pb = d.u, d.p
+    nb = b.Nbfun // 3
+    arrays = (np.ascontiguousarray(b.element_dofs.T.reshape(-1, nb, 3), dtype=np.int64),
+              np.ascontiguousarray(_scalar_gradients(b).transpose(2, 3, 0, 1)),
+              np.ascontiguousarray(b.dx, dtype=float),
+              np.ascontiguousarray(pb.element_dofs.T, dtype=np.int64),
+              np.ascontiguousarray(np.stack([np.asarray(pb.basis[k][0].value) for k in range(pb.Nbfun)], axis=-1), dtype=float))
+    _LAYOUT.clear()
+    _LAYOUT[id(d)] = (d, arrays)
+    return arrays
+
+
+def compiled_residual(d: Discretisation, x: np.ndarray, lam_q: np.ndarray, mu_q: np.ndarray) -> np.ndarray:
+    """The internal residual [R_u; R_p] (n_dofs,) at x = [u; p / scale] by the fused compiled loop of
+    :mod:`fem.residual_kernels`; lam_q, mu_q (E, Q) Pa. Raises FloatingPointError where det F <= 0."""
+    from fem.residual_kernels import element_residuals
+
+    u_dofs, grads, dx, p_dofs, psi = _kernel_layout(d)
+    E, _, nb, _ = grads.shape
+    out_u, out_p = np.empty((E, nb, 3)), np.empty((E, p_dofs.shape[1]))
+    x = np.ascontiguousarray(x, dtype=float)
+    bad = element_residuals(x[: d.n_u], u_dofs, grads, dx, np.ascontiguousarray(mu_q, dtype=float), p_dofs, psi,
+                            x[d.n_u :], np.ascontiguousarray(lam_q, dtype=float), float(d.pressure_scale), out_u, out_p)
+    if bad:
+        raise FloatingPointError(f"det F <= 0 at {int(bad)} quadrature point(s)")
+    return np.concatenate([np.bincount(u_dofs.reshape(-1), weights=out_u.reshape(-1), minlength=d.n_u),
+                           np.bincount(p_dofs.reshape(-1), weights=out_p.reshape(-1), minlength=d.p.N)])
+
+
 _PATTERNS: dict = {}
 #: residual_and_tangent(..., with_tangent=False) by the compiled kernel of fem.residual_kernels (False: the
 #: numpy evaluation below, the same vector to round-off; the A/B switch)
@@ -180,9 +219,7 @@ def residual_and_tangent(d: Discretisation, x: np.ndarray, lam, mu, with_tangent
     if not with_tangent and COMPILED_RESIDUAL:
         # the residual alone (the condensed Newton's outer iterations, line searches): one fused compiled
         # loop, without scikit-fem's interpolation and the (3, 3, E, Q) temporaries (fem.residual_kernels)
-        from fem.residual_kernels import neo_hookean_residual
-
-        return neo_hookean_residual(d, x, _per_qp(lam, d.u), _per_qp(mu, d.u)), None
+        return compiled_residual(d, x, _per_qp(lam, d.u), _per_qp(mu, d.u)), None
     s = d.pressure_scale
     u, ph = x[: d.n_u], x[d.n_u :]
     prev = d.u.interpolate(u)

@@ -11,8 +11,9 @@ P = mu (F - F^-T) + s p F^-T (Bonet and Wood 2008, sec. 8.6; the module docstrin
 
     R_u(e, i, a) = sum_q P_ak (grad phi_i)_k dx_q,        R_p(e, k) = sum_q s psi_k (ln J - s p / lambda) dx_q
 
-per element; the scatter to the global vector stays a :func:`numpy.bincount` (ordered, so the sum
-does not depend on the thread count). Same numbers as the numpy evaluation (tested to round-off).
+per element; the discretisation's arrays and the scatter to the global vector (a :func:`numpy.bincount`,
+ordered, so the sum does not depend on the thread count) are :func:`fem.nonlinear.compiled_residual`'s.
+Same numbers as the numpy evaluation (tested to round-off).
 """
 
 from __future__ import annotations
@@ -81,43 +82,3 @@ def element_residuals(u, u_dofs, grads, dx, mu, p_dofs, psi, ph, lam, s, out_u, 
             for k in range(npf):
                 out_p[e, k] += rp * psi[e, q, k]
     return bad.sum()
-
-
-_LAYOUT: dict = {}
-
-
-def layout(d) -> tuple:
-    """The kernel's per-mesh arrays of a P2P1 :class:`fem.elasticity.Discretisation` (kept for one
-    discretisation at a time): u_dofs (E, nb, 3), grads (E, Q, nb, 3), dx (E, Q), p_dofs (E, np),
-    psi (E, Q, np)."""
-    key = id(d)
-    hit = _LAYOUT.get(key)
-    if hit is not None and hit[0] is d:
-        return hit[1]
-    b, pb = d.u, d.p
-    nb = b.Nbfun // 3
-    grads = np.stack([np.asarray(b.basis[3 * i][0].grad[0]) for i in range(nb)])  # (nb, 3, E, Q)
-    arrays = (np.ascontiguousarray(b.element_dofs.T.reshape(-1, nb, 3), dtype=np.int64),
-              np.ascontiguousarray(grads.transpose(2, 3, 0, 1)),
-              np.ascontiguousarray(b.dx, dtype=float),
-              np.ascontiguousarray(pb.element_dofs.T, dtype=np.int64),
-              np.ascontiguousarray(np.stack([np.asarray(pb.basis[k][0].value) for k in range(pb.Nbfun)], axis=-1), dtype=float))
-    _LAYOUT.clear()
-    _LAYOUT[key] = (d, arrays)
-    return arrays
-
-
-def neo_hookean_residual(d, x: np.ndarray, lam_q: np.ndarray, mu_q: np.ndarray) -> np.ndarray:
-    """The internal residual [R_u; R_p] (n_dofs,) of :func:`fem.nonlinear.residual_and_tangent` at
-    x = [u; p / scale]; lam_q, mu_q (E, Q) Pa. Raises FloatingPointError where det F <= 0."""
-    u_dofs, grads, dx, p_dofs, psi = layout(d)
-    E, _, nb, _ = grads.shape
-    out_u = np.empty((E, nb, 3))
-    out_p = np.empty((E, p_dofs.shape[1]))
-    x = np.ascontiguousarray(x, dtype=float)
-    bad = element_residuals(x[: d.n_u], u_dofs, grads, dx, np.ascontiguousarray(mu_q, dtype=float), p_dofs, psi,
-                            x[d.n_u :], np.ascontiguousarray(lam_q, dtype=float), float(d.pressure_scale), out_u, out_p)
-    if bad:
-        raise FloatingPointError(f"det F <= 0 at {int(bad)} quadrature point(s)")
-    return np.concatenate([np.bincount(u_dofs.reshape(-1), weights=out_u.reshape(-1), minlength=d.n_u),
-                           np.bincount(p_dofs.reshape(-1), weights=out_p.reshape(-1), minlength=d.p.N)])
