@@ -42,7 +42,8 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 from scipy.special import ellipeinc, ellipkinc
 
-__all__ = ["cantilever_tip", "cantilever_inclined_end", "centreline_under_point_load", "euler_load_clamped_free_n", "engesser_load_n"]
+__all__ = ["cantilever_tip", "cantilever_inclined_end", "centreline_under_point_load", "euler_load_clamped_free_n", "engesser_load_n",
+           "haringx_load_n"]
 
 
 def _alpha_of_tip_angle(theta0: float) -> tuple[float, float, float]:
@@ -157,3 +158,21 @@ def engesser_load_n(bending_stiffness_n_m2: float, shear_stiffness_n: float, len
     shear_stiffness_n: kappa G A (N)."""
     pe = euler_load_clamped_free_n(bending_stiffness_n_m2, length_m)
     return pe / (1.0 + pe / shear_stiffness_n)
+
+
+def haringx_load_n(bending_stiffness_n_m2: float, shear_stiffness_n: float, length_m: float) -> float:
+    """Haringx's shear-corrected buckling load (kappa G A / 2) (sqrt(1 + 4 P_E / (kappa G A)) - 1) (N),
+    clamped-free [Haringx1948]_: the load of a rod whose shear strain is measured in the section's own
+    (rotated) frame, as a Cosserat (Reissner) rod's is (fem.cosserat_rod), where Engesser's measures it
+    against the undeformed axis. The two agree to first order in P_E / (kappa G A) and differ by about
+    (P_E / kappa G A)^2 / 2 of P_E (0.3 % at P_E = 0.08 kappa G A).
+
+    shear_stiffness_n: kappa G A (N).
+
+    References
+    ----------
+    .. [Haringx1948] J. A. Haringx, "On highly compressible helical springs and rubber rods, and their
+       application for vibration-free mountings", Philips Research Reports 3 (1948) 401-449.
+    """
+    pe = euler_load_clamped_free_n(bending_stiffness_n_m2, length_m)
+    return 0.5 * shear_stiffness_n * (math.sqrt(1.0 + 4.0 * pe / shear_stiffness_n) - 1.0)
