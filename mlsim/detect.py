@@ -177,7 +177,9 @@ def _calibrate(photo: np.ndarray, photo_path: str, scene, out_dir: Path, use_opt
         cal = calibrate(photo, g.rows, g.cols, hough_params_for(photo.shape[:2], g.rows, g.cols, scene.dllm.blur_sigma_px),
                         debug_path=overlay)
     except CalibrationError as exc:
-        raise RecordingError("--calibration", photo_path, f"{exc} (overlay of the circles found: {exc.debug_image or overlay})") from None
+        # the error names the overlay it wrote; say where it would be only when it did not
+        why = str(exc) if exc.debug_image else f"{exc} (overlay of the circles found: {overlay})"
+        raise RecordingError("--calibration", photo_path, why) from None
     # the rod each taxel sees: the nearest paraxial rod image of the default optics at the photo's size
     # (the camera looks up, so the image is mirrored; the scale does not change which rod is nearest)
     expected, _ = rod_disks_px(view)

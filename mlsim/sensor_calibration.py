@@ -11,8 +11,10 @@ through the fitted camera (:mod:`mlsim.press_brightness`), and writes
 - ``DIR/sensor.toml``: a scene overlay, ``scene = "<SCENE>"`` plus the fields the recordings
   determine (the image size; the focal length that reproduces the fitted scale at the scene's
   camera distance; with ``--idle``, the black level and read noise where the 8-bit frames show the
-  noise; with ``--press``, ``emission.brightness_photons_per_m2``), each with its uncertainty in a comment, and the list of what they cannot determine (left
-  at the scene's values). ``mlsim run DIR/sensor.toml`` runs it;
+  noise; with ``--press``, ``emission.brightness_photons_per_m2``, whose uncertainty includes the
+  fitted focal length's: the light a press shows grows with the magnification), each with its
+  uncertainty in a comment, and the list of what they cannot determine (left at the scene's
+  values). ``mlsim run DIR/sensor.toml`` runs it;
 - ``DIR/calibration_fit.json``: every fitted value, its uncertainty and the residuals per rod;
 - ``DIR/calibration_overlay.png``: the circles Hough found on the photo.
 
@@ -121,7 +123,7 @@ def calibrate_sensor(photo, scene_path, out_dir, *, idle=None, press=None, force
     if (press is None) != (force_n is None):
         raise RecordingError("--force-n" if press is not None else "--press", force_n if press is not None else None,
                              "give the press recording and its force together: --press VIDEO --force-n F")
-    brightness = _brightness(press, force_n, view.with_values(fitted), rgb.shape[:2], cache) if press is not None else None
+    brightness = _brightness(press, force_n, view.with_values(fitted), rgb.shape[:2], cache, f_sigma) if press is not None else None
     result = {"photo": str(photo), "idle": None if idle is None else str(idle), "dark": dark, "brightness": brightness,
               "scene": str(scene_path), "overrides": overrides, "disks": cal.n_taxels, "fit": fit.as_dict(),
               "paraxial_scale_ratio": ratio, "scene_focal_length_mm": f_scene, "focal_length_mm": f, "focal_length_sigma_mm": f_sigma,
@@ -148,7 +150,8 @@ def calibrate_sensor(photo, scene_path, out_dir, *, idle=None, press=None, force
             "",
             "[emission]",
             f"brightness_photons_per_m2 = {brightness['brightness_photons_per_m2']:.6g}  # +- {brightness['sigma']:.2g} (the press of "
-            f"{brightness['force_n']:g} N, {len(brightness['iterations'])} simulations; the scene's [load] taken as that press)"]),
+            f"{brightness['force_n']:g} N, {len(brightness['iterations'])} simulations, the lens's uncertainty included; "
+            "the scene's [load] taken as that press)"]),
         "",
     ]
     lines = _with_overrides(lines, overrides, set(fitted) | set(size) | ({"emission.brightness_photons_per_m2"} if brightness else set()))
@@ -254,12 +257,13 @@ def _dark_lines(dark) -> list[str]:
         lo, hi = dark["black_level_range_dn"]
         return [f"# black_level_dn, read_noise_e not determined from {dark['frames']} idle frames: {dark['why']} "
                 f"(black level within [{lo:g}, {hi:g}) DN)"]
-    return [f"black_level_dn = {dark['black_level_dn']:.3f}  # +- {dark['black_level_sigma']:.2g} DN (idle video, {dark['frames']} frames)",
-            f"read_noise_e = {dark['read_noise_e']:.4f}  # +- {dark['read_noise_sigma']:.2g} e- ({dark['why']})"]
+    return [f"black_level_dn = {dark['black_level_dn']:.6g}  # +- {dark['black_level_sigma']:.2g} DN (idle video, {dark['frames']} frames)",
+            f"read_noise_e = {dark['read_noise_e']:.6g}  # +- {dark['read_noise_sigma']:.2g} e- ({dark['why']})"]
 
 
-def _brightness(press, force_n, scene, shape_hw, cache) -> dict:
-    """The ML brightness fitted to a press recording (:func:`mlsim.press_brightness.fit_brightness`)."""
+def _brightness(press, force_n, scene, shape_hw, cache, focal_length_sigma_mm: float) -> dict:
+    """The ML brightness fitted to a press recording (:func:`mlsim.press_brightness.fit_brightness`), its
+    uncertainty including the fitted lens's (``focal_length_sigma_mm``)."""
     from mlsim import pipeline
     from mlsim.detect import RecordingError, open_recording
     from mlsim.press_brightness import fit_brightness
@@ -271,6 +275,7 @@ def _brightness(press, force_n, scene, shape_hw, cache) -> dict:
         raise RecordingError("--press", str(press), f"its frames are {rec.shape_hw[1]} x {rec.shape_hw[0]} px, the photo "
                                                     f"{shape_hw[1]} x {shape_hw[0]}: record both with the same camera and crop")
     try:
-        return fit_brightness(np.stack(list(rec.frames())), scene, float(force_n), cache if cache is not None else pipeline.Cache())
+        return fit_brightness(np.stack(list(rec.frames())), scene, float(force_n), cache if cache is not None else pipeline.Cache(),
+                              focal_length_sigma_mm=focal_length_sigma_mm)
     except ValueError as exc:
         raise RecordingError("--press", str(press), str(exc)) from None

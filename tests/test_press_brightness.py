@@ -48,6 +48,9 @@ def test_a_scene_without_a_force_press_is_refused(scene):
     assert with_press_force(scene, 0.7).load.segments[0].force_n == 0.7
     with pytest.raises(SceneError, match="--force-n.*no force-controlled press"):
         with_press_force(load_scene(ROOT / "scenes" / "mavig_tiny.toml"), 1.0)
+    for bad in (-0.01, float("nan")):  # the lens's uncertainty, checked before any simulation
+        with pytest.raises(ValueError, match="focal_length_sigma_mm = .*must be a standard uncertainty >= 0"):
+            fit_brightness(np.zeros((31, 8, 8, 3), np.uint8), scene, 0.3, cache=None, focal_length_sigma_mm=bad)
 
 
 def test_three_brighter_or_dimmer_sensors_are_fitted_back(scene, cache):
