@@ -66,7 +66,7 @@ def _mitsuba():
     return use_variant(VARIANT)
 
 
-def _grey(mi, rho: float) -> dict:
+def _grey(rho: float) -> dict:
     return {"type": "twosided", "material": {"type": "diffuse", "reflectance": {"type": "uniform", "value": float(rho)}}}
 
 
@@ -81,7 +81,7 @@ def _spot(mi, origin, axis, m: float) -> dict:
 
 
 def _meter(mi, to_world) -> dict:
-    return {"type": "disk", "to_world": to_world, "bsdf": _grey(mi, 0.0),
+    return {"type": "disk", "to_world": to_world, "bsdf": _grey(0.0),
             "sensor": {"type": "irradiancemeter", "sampler": {"type": "independent"},
                        "film": {"type": "hdrfilm", "width": 1, "height": 1, "pixel_format": "luminance", "rfilter": {"type": "box"}}}}
 
@@ -103,8 +103,8 @@ def cavity_scene(pose3, pair: int, layout: PairLayout, optics: Optics) -> dict:
     if not np.allclose(layout.ltv_axis[pair], [0.0, 0.0, 1.0]):
         raise ValueError(f"layout.ltv_axis[{pair}] = {layout.ltv_axis[pair].tolist()}: the render places the LTV flat on the base, facing +z")
     return {"type": "scene", "integrator": {"type": "path", "max_depth": -1},
-            "base": {"type": "rectangle", "to_world": T.scale([width / 2.0, length / 2.0, 1.0]), "bsdf": _grey(mi, optics.rho_base)},
-            "shell": {"type": "rectangle", "to_world": T(shell.tolist()), "bsdf": _grey(mi, optics.rho_shell)},
+            "base": {"type": "rectangle", "to_world": T.scale([width / 2.0, length / 2.0, 1.0]), "bsdf": _grey(optics.rho_base)},
+            "shell": {"type": "rectangle", "to_world": T(shell.tolist()), "bsdf": _grey(optics.rho_shell)},
             "led": _spot(mi, led, axis, lambert_order(optics.half_angle_deg)),
             "ltv": _meter(mi, T.translate(ltv.tolist()) @ T.scale(LTV_RADIUS_MM))}
 
@@ -132,7 +132,7 @@ def sphere_scene(radius_mm: float, rho: float, half_angle_deg: float) -> dict:
     T = mi.ScalarTransform4f
     m = lambert_order(half_angle_deg)
     return {"type": "scene", "integrator": {"type": "path", "max_depth": -1},
-            "ball": {"type": "sphere", "radius": float(radius_mm), "flip_normals": True, "bsdf": _grey(mi, rho)},
+            "ball": {"type": "sphere", "radius": float(radius_mm), "flip_normals": True, "bsdf": _grey(rho)},
             "led": _spot(mi, np.zeros(3), np.array([0.0, 0.0, -1.0]), m),
             "ltv": _meter(mi, T.translate([radius_mm - LTV_LIFT_MM, 0.0, 0.0]) @ T.rotate([0, 1, 0], -90.0) @ T.scale(LTV_RADIUS_MM))}
 
