@@ -4,17 +4,19 @@ The LED's light that does not reach the LTV directly strikes the base (the LED f
 what the base reflects lights the shell's inner surface, which lights the LTV. Both surfaces are
 Lambertian (reflectances rho_base, rho_shell), the cavity's sides are open (what leaves is lost),
 and the LTV, lying in the base, sees the shell only. The radiosity equations of two diffuse surfaces
-(Siegel & Howell, *Thermal Radiation Heat Transfer*, 4th ed., 2002, eq. 6.4-6.5; Modest,
-*Radiative Heat Transfer*, 3rd ed., 2013, eq. 5.28 with a non-uniform irradiation) are, per unit I0,
+with non-uniform radiosity (Siegel & Howell, *Thermal Radiation Heat Transfer*, 4th ed., 2002, ch. 6,
+the integral equations of exchange among diffuse surfaces; Modest, *Radiative Heat Transfer*, 3rd ed.,
+2013, ch. 5) are, per unit I0,
 
     B_b(x) = rho_b [E_0(x) + int_shell B_s(y) K(x, y) dA_y],    B_s(y) = rho_s int_base B_b(x) K(x, y) dA_x,
     E_ltv  = int_shell B_s(y) K(y, ltv) dA_y,                   K(x, y) = cos(t_x) cos(t_y) / (pi |x - y|^2),
 
-K the differential view factor's kernel (Modest eq. 4.11), E_0 the LED's irradiance on the base
-(I(theta) = cos^m(theta), Moreno & Sun 2008, eq. 1; :func:`other_sensors.cls.optics.direct_irradiance`).
+K the kernel of the view factor between two surface elements (Modest ch. 4), E_0 the LED's
+irradiance on the base (I(theta) = cos^m(theta), Moreno & Sun 2008, eq. 1;
+:func:`other_sensors.cls.optics.direct_irradiance`).
 They are solved by Nystrom quadrature: a composite two-point Gauss-Legendre rule on each rectangle
 (the base's and the shell's footprint, the shell at its pose: tilted, shifted, compressed), the
-bounce series summed until it stops changing (rho_b rho_s F^2 < 0.03 here, so three bounces suffice).
+bounce series summed until it stops changing (each round trip multiplies by about rho_b rho_s F^2 < 0.03).
 The two planes face each other over the whole footprint at every pose the shell reaches, so every
 node sees every other (no occlusion test). The foam pillars are not surfaces of this cavity: the
 layout puts them on the pairs' line, where the LTVs are (:mod:`other_sensors.cls.optics_render`).
@@ -22,8 +24,8 @@ layout puts them on the pairs' line, where the LTVs are (:mod:`other_sensors.cls
 Against Mitsuba's path tracer over the same cavity (:mod:`other_sensors.cls.optics_render`, 2^20
 samples, ten poses from an 18 to a 50 mm gap, shifts to 6 mm, tilts to 6 deg, five pairs), this
 term is within 0.7 % of the rendered light (docs/uses/sibling-sensors.md; ``tests/test_cls_optics_render.py``
-holds 1.5 %). The uniform-cavity formula it replaces (Goebel 1967) was 1.1-6.9x the rendered
-light: it let the base's first bounce reach the LTV, and it grew 35 % from a 40 to a 22 mm gap
+holds 1.5 %). The uniform-cavity formula it replaces (Goebel 1967) was 0.7-8.6x the rendered
+light at those poses: it let the base's first bounce reach the LTV, and it grew 35 % from a 40 to a 22 mm gap
 against the rendered 350-420 %.
 
 Many poses (a trajectory's thousands) are interpolated, trilinearly in (y, z, rx), on a grid over

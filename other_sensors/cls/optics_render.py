@@ -5,7 +5,7 @@ between the base and the shell at the shell's pose (:func:`other_sensors.cls.cav
 This module renders the same light with Mitsuba 3's path tracer (``path``, unbounded depth with
 Russian roulette) over the shell's actual (tilted, sheared, compressed) pose, to say how far the
 radiosity is from it. It chose that model: the uniform-cavity formula (Goebel 1967) the truth held
-first was 1.1-6.9x the rendered light, the radiosity is within 0.7 % of it (docs/uses/sibling-sensors.md).
+first was 0.7-8.6x the rendered light, the radiosity is within 0.7 % of it (docs/uses/sibling-sensors.md).
 The set-up:
 
 - the base (reflectance rho_base) and the shell's inner surface (rho_shell) are two Lambertian
