@@ -84,7 +84,7 @@ DIMENSIONLESS: dict[str, str] = {
     "row_counts": "cells per row", "sensor_radius_fraction": "a fraction of the cell radius", "quadrature": "sub-triangles per edge",
     "eps_area": "a fraction of the sole's area", "k_xi": "a gain (SPEC 4)", "grid": "points per side", "max_strain": "a strain",
     "jitter": "relative", "set_fraction": "a fraction", "median_samples": "samples", "window_samples": "samples",
-    "rho_base": "a diffuse reflectance", "rho_shell": "a diffuse reflectance", "rho_foam": "a diffuse reflectance",
+    "rho_base": "a diffuse reflectance", "rho_shell": "a diffuse reflectance",
     "leg_mass_fraction": "a fraction of the body's mass",
 }
 

@@ -13,11 +13,16 @@ on one skin meets other chips on the helmet, as on the real robot.
 
 Sources (parameter by parameter, :mod:`other_sensors.anyskin.schema`): the LSBs 0.150 uT (x, y) and
 0.242 uT (z) are the MLX90393's sensitivities at GAIN_SEL = 7, RES = 0, HALLCONF = 0xC (Melexis,
-*MLX90393 Triaxis Magnetic Node datasheet*, rev. 006, 2020, table of sensitivities); its z plate is
-1.6 x less sensitive than the x, y flux-concentrator channels, so with the same noise in LSB the z noise
-in uT is the x, y noise times 0.242 / 0.150. The x, y noise (1.5 uT rms at the 150 Hz rate), the offset
-spread, the gain spread and the cross-axis spread are stated choices of typical Hall-sensor magnitudes
-(the defaults in the schema say so), not fitted to any published error.
+*MLX90393 Triaxis Magnetic Node datasheet*, rev. 006, 2020, table of sensitivities); checked on
+2026-11-27 against the table that Adafruit's driver transcribes from that datasheet
+(``adafruit/Adafruit_CircuitPython_MLX90393``, ``adafruit_mlx90393.py``, ``_LSB_LOOKUP``: HALLCONF 0xC,
+gain 1x (GAIN_SEL 7), RES 0 -> (0.150, 0.242) uT/LSB; GAIN_SEL 0 -> (0.751, 1.210); HALLCONF 0x0, GAIN_SEL 7
+-> (0.157, 0.253); commit 89aed8d): they agree. Its z plate is 1.6 x less sensitive than the x, y
+flux-concentrator channels, so with the same noise in LSB the z noise in uT is the x, y noise times 0.242 / 0.150. The x, y noise
+(1.5 uT rms at the 150 Hz rate), the offset spread, the gain spread and the cross-axis spread are stated
+choices of typical Hall-sensor magnitudes (the defaults in the schema say so), not fitted to any published
+error, and not checked against the datasheet: its noise and offset tables were not among the sources that
+could be read when this was checked (only the datasheet's first pages are indexed there).
 """
 
 from __future__ import annotations

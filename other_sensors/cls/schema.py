@@ -127,21 +127,20 @@ class OpticsSpec(_Model):
     # 940 nm parts; a choice, not the nominal law's c4)
     half_angle_deg: float = Field(30.0, gt=0, lt=90)
     # Diffuse reflectances at the LED's near infrared (choices): a green solder-mask base 0.1, a grey
-    # 3D-printed shell's inner surface 0.3, the grey open-cell foam's sides 0.6 (its scattering as a wall)
+    # 3D-printed shell's inner surface 0.3. The foam pillars are not walls of the optical cavity (the
+    # layout puts them on the pairs' line: other_sensors/cls/cavity_radiosity.py), so no foam reflectance
     rho_base: float = Field(0.1, ge=0, lt=1)
     rho_shell: float = Field(0.3, ge=0, lt=1)
-    rho_foam: float = Field(0.6, ge=0, lt=1)
-    # The cavity's footprint (a choice: the 130 mm the pillars span along y, 50 mm across)
+    # The cavity's footprint, the base's and the shell's (a choice: the 130 mm the pillars span along y, 50 mm across)
     length_mm: float = Field(130.0, gt=0, le=2000)
     width_mm: float = Field(50.0, gt=0, le=2000)
     # The LTV's dark output (a choice of a light-to-voltage converter's few millivolts)
     dark_mv: float = Field(5.0, ge=0, le=1000)
 
-    def optics(self, pillar_width_mm: float):
+    def optics(self):
         from other_sensors.cls.optics import Optics
 
-        return Optics(self.half_angle_deg, self.rho_base, self.rho_shell, self.rho_foam, (self.length_mm, self.width_mm),
-                      pillar_width_mm, 3, self.dark_mv * 1e-3)
+        return Optics(self.half_angle_deg, self.rho_base, self.rho_shell, (self.length_mm, self.width_mm), self.dark_mv * 1e-3)
 
 
 class ClsSensor(_Model):

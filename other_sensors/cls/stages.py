@@ -61,7 +61,7 @@ def clean_voltages(sensor, pose3, built):
         return planar_voltages(pose3, built)
     from other_sensors.cls.optics import optical_voltages
 
-    return optical_voltages(pose3, built, layout_of(sensor), sensor.optics.optics(sensor.foam.section_mm2 ** 0.5))
+    return optical_voltages(pose3, built, layout_of(sensor), sensor.optics.optics())
 
 
 def measured_voltages(sensor, pose3, built, rng):
@@ -134,8 +134,8 @@ def _summarize_signals(result) -> dict:
             "v_min_V": float(result["voltages"].min()), "v_max_V": float(result["voltages"].max())}
 
 
-SIGNALS = Stage(name="cls_signals", version="2", doc="the shell's trajectory and the pairs' voltages (noise, ADC)",
-                reads=("sensor.pairs", "sensor.trajectory", "sensor.noise", "sensor.optics", "sensor.foam.section_mm2", "seed"),
+SIGNALS = Stage(name="cls_signals", version="3", doc="the shell's trajectory and the pairs' voltages (noise, ADC)",
+                reads=("sensor.pairs", "sensor.trajectory", "sensor.noise", "sensor.optics", "seed"),
                 needs=(), run=_signals,
                 save=pickle_save, load=pickle_load, write=_write_signals, summarize=_summarize_signals)
 
@@ -236,9 +236,8 @@ def _summarize_calibration(result) -> dict:
     return {k: report[k] for k in ("residual_rms_mv", "iterations", "not_identifiable_in_every_pair")}
 
 
-CALIBRATE = Stage(name="cls_calibrate", version="2", doc="batch LM calibration of each pair's coefficients and mounting poses from a 37 s trajectory of measured poses",
-                  reads=("sensor.pairs", "sensor.calibration", "sensor.noise", "sensor.optics", "sensor.foam.section_mm2",
-                         "sensor.estimator.r_max_mm", "sensor.trajectory.compression_mm",
+CALIBRATE = Stage(name="cls_calibrate", version="3", doc="batch LM calibration of each pair's coefficients and mounting poses from a 37 s trajectory of measured poses",
+                  reads=("sensor.pairs", "sensor.calibration", "sensor.noise", "sensor.optics", "sensor.estimator.r_max_mm", "sensor.trajectory.compression_mm",
                          "sensor.trajectory.shear_mm", "sensor.trajectory.rotation_deg", "sensor.trajectory.frequency_hz", "seed"),
                   needs=(), run=_calibrate, save=pickle_save, load=pickle_load, write=_write_calibration, summarize=_summarize_calibration)
 
@@ -320,10 +319,11 @@ TRUTH_NOTES = {
             "and the calibration's residual remain; the hardware's errors also hold model error, motion-capture error and "
             "foam hysteresis."),
     "optics": ("The simulated voltages come from optics (other_sensors.cls.optics: the LED's beam, the LTV's acceptance, the "
-               "cavity's diffuse light) and the calibration fits the seven-coefficient law to them from motion-capture poses "
-               "with their own noise: the errors hold the law's model error and the calibration's; run the same scene "
-               "without [sensor.optics] for the noise alone. With sensor.foam.maxwell_kpa > 0 the true force holds the "
-               "foam's hysteresis (other_sensors.cls.foam_viscoelastic), which the elastic law's force misses."),
+               "cavity's diffuse light as two-surface radiosity between base and shell) and the calibration fits the "
+               "seven-coefficient law to them from motion-capture poses with their own noise: the errors hold the law's "
+               "model error and the calibration's; run the same scene without [sensor.optics] for the noise alone. "
+               "With sensor.foam.maxwell_kpa > 0 the true force holds the foam's hysteresis "
+               "(other_sensors.cls.foam_viscoelastic), which the elastic law's force misses."),
 }
 
 
