@@ -17,10 +17,13 @@ continuum's (3 % short at n = 50). The benchmark therefore runs PyElastica at tw
 Richardson-extrapolates, d = 2 d(2n) - d(n), and compares mlsim with that limit. Measured (alpha = 1,
 2 shared cores): n = 10 and 20 give 0.868 and 0.935 of the elastica, the limit 1.002 (PyElastica's
 shear flexibility, 3 E I / (kappa G A L^2) = 0.15 % here, is in it; the elastica and mlsim's slender
-beam have next to none).
+beam have next to none). At alpha = 1, 3, 5 (2026-11-27, 2 loaded cores, 40 min): tip deflection over L,
+elastica 0.30172 / 0.60325 / 0.71379, mlsim 0.30152 / 0.60202 / 0.71220, PyElastica's limit
+0.30235 / 0.60526 / 0.71670: mlsim 0.27 / 0.54 / 0.63 % below PyElastica, each 0.07-0.41 % from the
+elastica on either side; the tip along the axis within 0.2 %.
 
     .venv/bin/pip install pyelastica   # the `bench` extra: not needed by mlsim or its tests
-    .venv/bin/python benchmarks/bench_elastica_pyelastica.py [--elements 10]   # about 11 min
+    .venv/bin/python benchmarks/bench_elastica_pyelastica.py [--elements 10]   # 11-40 min
 """
 
 from __future__ import annotations
