@@ -33,10 +33,13 @@ the energy whose model step is solved exactly ([NocedalWright2006]_, ch. 4).
 
 Verified in tests/test_cosserat_rod.py: exact derivatives; Timoshenko's cantilever at small load; the
 elastica (Bisshopp and Drucker) to 0.07 % at 32 segments, second order; pure torsion; the buckling
-load, which with shear is Haringx's (the shear measured in the section's frame,
+load to 0.02 % at 32 segments, second order, which with shear is Haringx's (the shear measured in the section's frame,
 :func:`fem.elastica.haringx_load_n`), not Engesser's; the post-buckled column (Euler's elastica) at
 1.5 x its load to 0.1 %. This is the rod alone: the coupling to the base's compliance, the contact,
 the stress recovery in the ML layer and inertia (issue 38) build on it; it is not a solve tier yet.
+Every function takes a batch of rods (leading axes), solved together and each as it would be alone
+(benchmarks/bench_cosserat_rod.py: the default sensor's 25 rods at 8 segments, 49 ms a load step in
+numpy on a loaded 2-core machine; the 300 frames/s of issue 38 wants compiled kernels).
 
 References
 ----------
@@ -150,114 +153,124 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 def straight_rod(section: RodSection, segments: int, root_m=(0.0, 0.0, 0.0), frame=(1.0, 0.0, 0.0, 0.0)) -> RodState:
-    """The unloaded rod of ``segments`` segments along the clamp frame's d3 from ``root_m``."""
+    """The unloaded rod of ``segments`` segments along the clamp frame's d3 from ``root_m``; root_m (..., 3)
+    and frame (..., 4) may carry leading axes (a batch of rods)."""
     if segments < 1:
         raise ValueError(f"segments = {segments}: must be >= 1")
-    q0 = np.asarray(frame, dtype=float) / np.linalg.norm(frame)
-    d3 = rotation_matrix(q0)[:, 2]
+    q0 = np.asarray(frame, dtype=float)
+    q0 = q0 / np.linalg.norm(q0, axis=-1, keepdims=True)
+    root = np.asarray(root_m, dtype=float)
+    q0, root = np.broadcast_arrays(q0, np.concatenate([root, np.zeros(root.shape[:-1] + (1,))], axis=-1))
+    root = root[..., :3]
+    d3 = rotation_matrix(q0)[..., :, 2]
     s = np.linspace(0.0, section.length_m, segments + 1)
-    return RodState(np.asarray(root_m, dtype=float) + s[:, None] * d3, np.tile(q0, (segments, 1)))
+    x = root[..., None, :] + s[:, None] * d3[..., None, :]
+    return RodState(x, np.repeat(q0[..., None, :], segments, axis=-2).copy())
 
 
-# --- strains, energy, gradient and Hessian -------------------------------------------------------
+# --- strains, energy, gradient and Hessian (leading axes: a batch of rods) --------------------------
+
+def _voronoi(n: int, l: float) -> np.ndarray:
+    """The joints' lengths: l between segments, l / 2 at the clamp."""
+    lv = np.full(n, l)
+    lv[0] = 0.5 * l
+    return lv
+
 
 def _joints(q: np.ndarray, clamp: np.ndarray) -> np.ndarray:
     """p_i = conj(q_{i-1}) q_i for the joints i = 0..N-1 (q_{-1} the clamp), on the branch p_w >= 0."""
-    before = np.concatenate([clamp[None], q[:-1]], axis=0)
+    before = np.concatenate([np.broadcast_to(clamp[..., None, :], q[..., :1, :].shape), q[..., :-1, :]], axis=-2)
     p = qmul(qconj(before), q)
-    return np.where(p[:, :1] < 0.0, -p, p)
+    return np.where(p[..., :1] < 0.0, -p, p)
 
 
 def strains(state: RodState, section: RodSection, clamp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(sigma (N, 3), kappa (N, 3)): each segment's shear-stretch and each joint's bend-twist strain."""
-    n = len(state.q)
+    """(sigma (..., N, 3), kappa (..., N, 3)): each segment's shear-stretch and each joint's bend-twist strain."""
+    n = state.q.shape[-2]
     l = section.length_m / n
     R = rotation_matrix(state.q)
-    b = np.einsum("eji,ej->ei", R, np.diff(state.x, axis=0) / l)
-    sigma = b - np.array([0.0, 0.0, 1.0])
-    lv = np.full(n, l)
-    lv[0] = 0.5 * l
-    kappa = 2.0 * _joints(state.q, clamp)[:, 1:] / lv[:, None]
-    return sigma, kappa
+    b = np.einsum("...eji,...ej->...ei", R, np.diff(state.x, axis=-2) / l)
+    kappa = 2.0 * _joints(state.q, np.asarray(clamp, dtype=float))[..., 1:] / _voronoi(n, l)[:, None]
+    return b - np.array([0.0, 0.0, 1.0]), kappa
 
 
-def energy(state: RodState, section: RodSection, clamp: np.ndarray, tip_force_n=(0.0, 0.0, 0.0)) -> float:
-    """The rod's stored energy less the dead tip force's potential (J)."""
-    n = len(state.q)
+def energy(state: RodState, section: RodSection, clamp: np.ndarray, tip_force_n=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """The rods' stored energy less the dead tip force's potential (J), shape (...)."""
+    n = state.q.shape[-2]
     l = section.length_m / n
-    lv = np.full(n, l)
-    lv[0] = 0.5 * l
     sigma, kappa = strains(state, section, clamp)
-    stored = 0.5 * l * np.sum(sigma**2 * section.S) + 0.5 * np.sum(lv[:, None] * kappa**2 * section.B)
-    return float(stored - np.dot(tip_force_n, state.x[-1] - state.x[0]))
+    stored = 0.5 * l * np.sum(sigma**2 * section.S, axis=(-2, -1)) + 0.5 * np.sum(_voronoi(n, l)[:, None] * kappa**2 * section.B, axis=(-2, -1))
+    return stored - np.sum(np.asarray(tip_force_n, dtype=float) * (state.x[..., -1, :] - state.x[..., 0, :]), axis=-1)
 
 
 def gradient_and_hessian(state: RodState, section: RodSection, clamp: np.ndarray, tip_force_n=(0.0, 0.0, 0.0),
                          tip_moment_n_m=(0.0, 0.0, 0.0), hessian: bool = True):
-    """The energy's gradient g (6N,) and Hessian H (6N, 6N) in the unknowns (psi_0, x_1, psi_1, x_2, ...,
-    psi_{N-1}, x_N): each segment's rotation increment (in its own frame, q_e <- q_e cay(psi_e)) and the
-    node at its far end, at psi = 0. The dead tip moment (spatial, N m) enters g only."""
-    n = len(state.q)
+    """The energy's gradient g (..., 6N) and Hessian H (..., 6N, 6N) in the unknowns (psi_0, x_1, psi_1, x_2,
+    ..., psi_{N-1}, x_N): each segment's rotation increment (in its own frame, q_e <- q_e cay(psi_e)) and
+    the node at its far end, at psi = 0. The dead tip moment (spatial, N m) enters g only."""
+    n = state.q.shape[-2]
+    lead = state.q.shape[:-2]
     l = section.length_m / n
     S, Bk = section.S, section.B
-    R = rotation_matrix(state.q)  # (N, 3, 3)
-    RT = np.swapaxes(R, 1, 2)
-    b = np.einsum("eij,ej->ei", RT, np.diff(state.x, axis=0) / l)
+    R = rotation_matrix(state.q)  # (..., N, 3, 3)
+    RT = np.swapaxes(R, -1, -2)
+    b = np.einsum("...eij,...ej->...ei", RT, np.diff(state.x, axis=-2) / l)
     nmat = (b - np.array([0.0, 0.0, 1.0])) * S  # the sections' force in their frames (N)
-    p = _joints(state.q, clamp)
-    lv = np.full(n, l)
-    lv[0] = 0.5 * l
-    m = 2.0 * p[:, 1:] / lv[:, None] * Bk  # the joints' moment, in the frames of the joints (N m)
-    pw, pv = p[:, 0], p[:, 1:]
-    g = np.zeros((n, 6))  # block e: (psi_e, x_{e+1})
-    force = np.einsum("eij,ej->ei", R, nmat)  # spatial section forces
-    g[:, 3:] += force
-    g[:-1, 3:] -= force[1:]  # x_{e+1} is the start of segment e + 1
-    g[:, :3] += -l * np.cross(b, nmat)
+    p = _joints(state.q, np.asarray(clamp, dtype=float))
+    lv = _voronoi(n, l)
+    m = 2.0 * p[..., 1:] / lv[:, None] * Bk  # the joints' moment, in the frames of the joints (N m)
+    pw, pv = p[..., 0], p[..., 1:]
+    g = np.zeros(lead + (n, 6))  # block e: (psi_e, x_{e+1})
+    force = np.einsum("...eij,...ej->...ei", R, nmat)  # spatial section forces
+    g[..., 3:] += force
+    g[..., :-1, 3:] -= force[..., 1:, :]  # x_{e+1} is the start of segment e + 1
+    g[..., :3] += -l * np.cross(b, nmat)
     # joint i between frames i - 1 (a) and i (b): dkappa/dpsi_b = (p_w I + [p_v]x) / l_i, dkappa/dpsi_a = (-p_w I + [p_v]x) / l_i
-    g[:, :3] += pw[:, None] * m - np.cross(pv, m)
-    g[:-1, :3] += -pw[1:, None] * m[1:] - np.cross(pv[1:], m[1:])
-    g[-1, 3:] -= np.asarray(tip_force_n, dtype=float)
-    g[-1, :3] -= RT[-1] @ np.asarray(tip_moment_n_m, dtype=float)
+    g[..., :3] += pw[..., None] * m - np.cross(pv, m)
+    g[..., :-1, :3] += -pw[..., 1:, None] * m[..., 1:, :] - np.cross(pv[..., 1:, :], m[..., 1:, :])
+    g[..., -1, 3:] -= np.asarray(tip_force_n, dtype=float)
+    g[..., -1, :3] -= np.einsum("...ij,...j->...i", RT[..., -1, :, :], np.asarray(tip_moment_n_m, dtype=float))
+    g = g.reshape(lead + (6 * n,))
     if not hessian:
-        return g.ravel(), None
-    H = np.zeros((n, 6, n, 6))
-    e = np.arange(n)
+        return g, None
+    # block-tridiagonal: D[e] the (psi_e, x_{e+1}) block, O[e] the coupling of block e - 1 to block e
+    D = np.zeros(lead + (n, 6, 6))
+    O = np.zeros(lead + (n, 6, 6))
     # segment e: sigma = (I - [psi]x + [psi]x^2 / 2) R^T (x_{e+1} - x_e) / l - d3
     Jx = RT / l  # dsigma/dx_{e+1}; -Jx for x_e
     Jpsi = _skew(b)
     lS = l * S
-    Kxx = np.einsum("eki,k,ekj->eij", Jx, lS, Jx)
-    Kpp = np.einsum("eki,k,ekj->eij", Jpsi, lS, Jpsi) + l * (0.5 * (nmat[:, :, None] * b[:, None, :] + b[:, :, None] * nmat[:, None, :])
-                                                         - np.einsum("ek,ek->e", nmat, b)[:, None, None] * np.eye(3))
-    Kpx = np.einsum("eki,k,ekj->eij", Jpsi, lS, Jx) + np.einsum("eij,ejk->eik", _skew(nmat), RT)  # d2E / dpsi_e dx_{e+1}
-    H[e, :3, e, :3] += Kpp
-    H[e, :3, e, 3:] += Kpx
-    H[e, 3:, e, :3] += np.swapaxes(Kpx, 1, 2)
-    H[e, 3:, e, 3:] += Kxx
+    Kxx = np.einsum("...eki,k,...ekj->...eij", Jx, lS, Jx)
+    eye = np.eye(3)
+    Kpp = np.einsum("...eki,k,...ekj->...eij", Jpsi, lS, Jpsi) + l * (
+        0.5 * (nmat[..., :, None] * b[..., None, :] + b[..., :, None] * nmat[..., None, :])
+        - np.einsum("...k,...k->...", nmat, b)[..., None, None] * eye)
+    Kpx = np.einsum("...eki,k,...ekj->...eij", Jpsi, lS, Jx) + _skew(nmat) @ RT  # d2E / dpsi_e dx_{e+1}
+    D[..., :3, :3] += Kpp
+    D[..., :3, 3:] += Kpx
+    D[..., 3:, :3] += np.swapaxes(Kpx, -1, -2)
+    D[..., 3:, 3:] += Kxx
     # x_e (the node before segment e, free for e >= 1) sits in block e - 1
-    f = e[1:]
-    H[f - 1, 3:, f - 1, 3:] += Kxx[1:]
-    H[f, :3, f - 1, 3:] -= Kpx[1:]
-    H[f - 1, 3:, f, :3] -= np.swapaxes(Kpx[1:], 1, 2)
-    H[f, 3:, f - 1, 3:] -= Kxx[1:]
-    H[f - 1, 3:, f, 3:] -= Kxx[1:]
+    D[..., :-1, 3:, 3:] += Kxx[..., 1:, :, :]
+    O[..., 1:, 3:, :3] -= np.swapaxes(Kpx[..., 1:, :, :], -1, -2)  # (x_e, psi_e)
+    O[..., 1:, 3:, 3:] -= Kxx[..., 1:, :, :]  # (x_e, x_{e+1})
     # joint i: first-order J_b = (p_w I + [p_v]x) / l_i, J_a = (-p_w I + [p_v]x) / l_i; second-order terms of
     # 2 m . Im(conj(cay(a)) p cay(b)): -(m . p_v) / 2 on the aa and bb diagonals, (m p_v^T + [m]x (p_w I + [p_v]x)) / 2 for ab
-    eye = np.eye(3)
-    P = pw[:, None, None] * eye + _skew(pv)
+    P = pw[..., None, None] * eye + _skew(pv)
     Jb = P / lv[:, None, None]
-    Ja = (-pw[:, None, None] * eye + _skew(pv)) / lv[:, None, None]
-    diag = -0.5 * np.einsum("ik,ik->i", m, pv)[:, None, None] * eye
-    ab = 0.5 * (m[:, :, None] * pv[:, None, :] + _skew(m) @ P)
+    Ja = (-pw[..., None, None] * eye + _skew(pv)) / lv[:, None, None]
+    diag = -0.5 * np.einsum("...k,...k->...", m, pv)[..., None, None] * eye
     lvB = lv[:, None] * Bk
-    H[e, :3, e, :3] += np.einsum("ika,ik,ikb->iab", Jb, lvB, Jb) + diag
-    i = e[1:]
-    H[i - 1, :3, i - 1, :3] += np.einsum("ika,ik,ikb->iab", Ja[1:], lvB[1:], Ja[1:]) + diag[1:]
-    cross = np.einsum("ika,ik,ikb->iab", Ja[1:], lvB[1:], Jb[1:]) + ab[1:]
-    H[i - 1, :3, i, :3] += cross
-    H[i, :3, i - 1, :3] += np.swapaxes(cross, 1, 2)
-    return g.ravel(), H.reshape(6 * n, 6 * n)
+    D[..., :3, :3] += np.einsum("...ika,ik,...ikb->...iab", Jb, lvB, Jb) + diag
+    D[..., :-1, :3, :3] += np.einsum("...ika,ik,...ikb->...iab", Ja[..., 1:, :, :], lvB[1:], Ja[..., 1:, :, :]) + diag[..., 1:, :, :]
+    O[..., 1:, :3, :3] += np.einsum("...ika,ik,...ikb->...iab", Ja[..., 1:, :, :], lvB[1:], Jb[..., 1:, :, :]) \
+        + 0.5 * (m[..., 1:, :, None] * pv[..., 1:, None, :] + _skew(m[..., 1:, :]) @ P[..., 1:, :, :])
+    H = np.zeros(lead + (n, n, 6, 6))
+    idx = np.arange(n)
+    H[..., idx, idx, :, :] = D
+    H[..., idx[:-1], idx[1:], :, :] = O[..., 1:, :, :]
+    H[..., idx[1:], idx[:-1], :, :] = np.swapaxes(O[..., 1:, :, :], -1, -2)
+    return g, np.swapaxes(H, -3, -2).reshape(lead + (6 * n, 6 * n))
 
 
 def _update(state: RodState, step: np.ndarray) -> RodState:
@@ -267,37 +280,49 @@ def _update(state: RodState, step: np.ndarray) -> RodState:
     + b_e x psi_e. To first order this is the additive step (Newton's convergence is kept); for a large
     turn the nodes follow the frames along the arc instead of the tangent, which would stretch the rod by
     turn^2 / 2 and make a stiff axial spring cut every step short."""
-    blocks = step.reshape(-1, 6)
-    psi, dx = blocks[:, :3], np.vstack([np.zeros(3), blocks[:, 3:]])
+    blocks = step.reshape(step.shape[:-1] + (-1, 6))
+    psi = blocks[..., :3]
+    dx = np.concatenate([np.zeros(blocks.shape[:-2] + (1, 3)), blocks[..., 3:]], axis=-2)
     R = rotation_matrix(state.q)
-    chords = np.diff(state.x, axis=0)
-    b = np.einsum("eji,ej->ei", R, chords)
-    db = np.einsum("eji,ej->ei", R, np.diff(dx, axis=0)) + np.cross(b, psi)
+    b = np.einsum("...eji,...ej->...ei", R, np.diff(state.x, axis=-2))
+    db = np.einsum("...eji,...ej->...ei", R, np.diff(dx, axis=-2)) + np.cross(b, psi)
     q = qmul(state.q, cayley(psi))
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    new_chords = np.einsum("eij,ej->ei", rotation_matrix(q), b + db)
-    x = np.vstack([state.x[:1], state.x[:1] + np.cumsum(new_chords, axis=0)])
-    return RodState(x, q)
+    chords = np.einsum("...eij,...ej->...ei", rotation_matrix(q), b + db)
+    root = state.x[..., :1, :]
+    return RodState(np.concatenate([root, root + np.cumsum(chords, axis=-2)], axis=-2), q)
+
+
+def _where(mask: np.ndarray, a: RodState, b: RodState) -> RodState:
+    """a where mask (...,) holds, else b."""
+    return RodState(np.where(mask[..., None, None], a.x, b.x), np.where(mask[..., None, None], a.q, b.q))
 
 
 def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0), tip_moment_n_m=(0.0, 0.0, 0.0),
                  clamp=(1.0, 0.0, 0.0, 0.0), root_m=(0.0, 0.0, 0.0), start: RodState | None = None, increments: int = 1,
                  rtol: float = 1e-10, max_iterations: int = 60) -> RodState:
-    """The rod's equilibrium under a dead tip force (N) and tip moment (N m), both spatial, applied in
-    ``increments`` equal load steps from ``start`` (default: the straight rod along the clamp frame's d3
-    from ``root_m``). Converged when the nodes' forces are balanced to ``rtol`` of the load scale and the
-    frames' moments to that times a segment's length (or to the stiffnesses' round-off, 100 eps E A).
-    Raises :class:`mlsim.errors.SolverError` if Newton does not converge."""
-    clamp = np.asarray(clamp, dtype=float) / np.linalg.norm(clamp)
-    state = start if start is not None else straight_rod(section, segments, root_m, clamp)
+    """The rods' equilibrium under a dead tip force (N) and tip moment (N m), both spatial, applied in
+    ``increments`` equal load steps from ``start`` (default: the straight rods along the clamp frames'
+    d3 from ``root_m``). Forces, moments, clamps and roots may carry leading axes: a batch of rods,
+    solved together (each with its own trust region) and equal to solving each alone. Converged when
+    the nodes' forces are balanced to ``rtol`` of the load scale and the frames' moments to that times
+    a segment's length (or to the stiffnesses' round-off, 100 eps E A). Raises
+    :class:`mlsim.errors.SolverError` if Newton does not converge."""
     F, M = np.asarray(tip_force_n, dtype=float), np.asarray(tip_moment_n_m, dtype=float)
     if not (np.all(np.isfinite(F)) and np.all(np.isfinite(M))):
         raise ValueError(f"tip_force_n = {F.tolist()}, tip_moment_n_m = {M.tolist()}: must be finite")
+    clamp = np.asarray(clamp, dtype=float)
+    clamp = clamp / np.linalg.norm(clamp, axis=-1, keepdims=True)
+    lead = np.broadcast_shapes(F.shape[:-1], M.shape[:-1], clamp.shape[:-1], np.shape(root_m)[:-1],
+                               start.q.shape[:-2] if start is not None else ())
+    clamp = np.broadcast_to(clamp, lead + (4,))
+    F, M = np.broadcast_to(F, lead + (3,)), np.broadcast_to(M, lead + (3,))
+    state = start if start is not None else straight_rod(section, segments, np.broadcast_to(np.asarray(root_m, dtype=float), lead + (3,)), clamp)
     eps = np.finfo(float).eps
-    load = max(float(np.linalg.norm(F)), float(np.linalg.norm(M)) / section.length_m, section.B.max() / section.length_m**2)
-    force_tol = max(rtol * load, 100.0 * eps * section.S.max())
-    l = section.length_m / len(state.q)
-    tolerances = (force_tol, max(force_tol * l, 100.0 * eps * section.B.max() / l))
+    load = np.maximum(np.maximum(np.linalg.norm(F, axis=-1), np.linalg.norm(M, axis=-1) / section.length_m), section.B.max() / section.length_m**2)
+    force_tol = np.maximum(rtol * load, 100.0 * eps * section.S.max())
+    l = section.length_m / state.q.shape[-2]
+    tolerances = (force_tol, np.maximum(force_tol * l, 100.0 * eps * section.B.max() / l))
     # the matrices are small (6 N): BLAS threads only fight each other (60x slower on a loaded 2-core machine)
     with threadpool_limits(1, user_api="blas"):
         for k in range(1, increments + 1):
@@ -306,92 +331,110 @@ def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0)
     return state
 
 
-def _imbalance(g: np.ndarray, tolerances: tuple[float, float]) -> float:
-    """The larger of the nodes' unbalanced force and the frames' unbalanced moment, each over its tolerance."""
-    blocks = g.reshape(-1, 6)
-    return max(float(np.linalg.norm(blocks[:, 3:])) / tolerances[0], float(np.linalg.norm(blocks[:, :3])) / tolerances[1])
+def _imbalance(g: np.ndarray, tolerances) -> np.ndarray:
+    """The larger of the nodes' unbalanced force and the frames' unbalanced moment, each over its tolerance (...)."""
+    blocks = g.reshape(g.shape[:-1] + (-1, 6))
+    return np.maximum(np.linalg.norm(blocks[..., 3:], axis=(-2, -1)) / tolerances[0],
+                      np.linalg.norm(blocks[..., :3], axis=(-2, -1)) / tolerances[1])
 
 
 def _newton(state: RodState, section: RodSection, clamp: np.ndarray, F: np.ndarray, M: np.ndarray, tolerances, max_iterations: int,
             where: str) -> RodState:
-    """Newton's method from ``state`` under (F, M). Under a dead force alone (conservative): a trust region
-    on the energy, its model step solved exactly over the Hessian's eigenvalues ([NocedalWright2006]_
-    Algorithm 4.3), which follows a column past its buckling load off the straight state (a saddle) to
-    the bent one. With a dead moment (not conservative: no energy to judge a step by, and its load
-    stiffness left out of H): Newton's step with a backtracking line search on the imbalance."""
-    l = section.length_m / len(state.q)
+    """Newton's method from ``state`` under (F, M), every rod of the batch at once. Under a dead force
+    alone (conservative): a trust region on each rod's energy, its model step solved exactly over the
+    Hessian's eigenvalues ([NocedalWright2006]_ Algorithm 4.3), which follows a column past its buckling
+    load off the straight state (a saddle) to the bent one. With a dead moment (not conservative: no
+    energy to judge a step by, and its load stiffness left out of H): Newton's step with a
+    backtracking line search on the imbalance."""
+    n = state.q.shape[-2]
+    l = section.length_m / n
     # the trust region's norm: turns in rad, node moves in segment lengths
-    scale = np.tile(np.array([1.0, 1.0, 1.0, 1.0 / l, 1.0 / l, 1.0 / l]), len(state.q))
-    radius = MAX_TURN_RAD
+    scale = np.tile(np.array([1.0, 1.0, 1.0, 1.0 / l, 1.0 / l, 1.0 / l]), n)
+    lead = state.q.shape[:-2]
+    radius = np.full(lead, MAX_TURN_RAD)
     conservative = not np.any(M)
     for _ in range(max_iterations):
         g, H = gradient_and_hessian(state, section, clamp, F, M)
         i0 = _imbalance(g, tolerances)
-        if i0 <= 1.0:
+        todo = i0 > 1.0
+        if not np.any(todo):
             return state
         if conservative:
-            # the model in scaled coordinates y = scale * step: g_s = g / scale, H_s = H / (scale scale^T)
-            gs, Hs = g / scale, H / np.outer(scale, scale)
-            step_s, predicted = _trust_region_step(gs, Hs, radius)
+            step_s, predicted = _trust_region_step(g / scale, H / np.outer(scale, scale), radius)
             trial = _update(state, step_s / scale)
-            actual = energy(state, section, clamp, F) - energy(trial, section, clamp, F)
-            ratio = actual / predicted if predicted > 0.0 else 0.0
-            if ratio < 0.25:
-                radius *= 0.25
-            elif ratio > 0.75 and np.linalg.norm(step_s) > 0.99 * radius:
-                radius = min(2.0 * radius, 16.0 * MAX_TURN_RAD)
-            if ratio > 1e-4 or (actual >= 0.0 and _imbalance(gradient_and_hessian(trial, section, clamp, F, M, hessian=False)[0], tolerances) < i0):
-                state = trial  # (the second: near the answer the energy's change is below its round-off)
-            if radius < 1e-12:
+            e_state = energy(state, section, clamp, F)
+            actual = e_state - energy(trial, section, clamp, F)
+            ratio = np.where(predicted > 0.0, actual / np.where(predicted > 0.0, predicted, 1.0), 0.0)
+            full = np.linalg.norm(step_s, axis=-1) > 0.99 * radius
+            radius = np.where(ratio < 0.25, 0.25 * radius, np.where((ratio > 0.75) & full, np.minimum(2.0 * radius, 16.0 * MAX_TURN_RAD), radius))
+            # near the answer the energy's change is below its round-off (either sign): then a lower imbalance is progress
+            noise = 1e-12 * (np.abs(e_state) + np.abs(np.sum(F * (state.x[..., -1, :] - state.x[..., 0, :]), axis=-1)))
+            accept = (ratio > 1e-4) | ((actual >= -noise) & (_imbalance(gradient_and_hessian(trial, section, clamp, F, M, hessian=False)[0], tolerances) < i0))
+            state = _where(todo & accept, trial, state)
+            if np.all(radius[todo] < 1e-12):
                 break
             continue
-        step = -np.linalg.solve(H, g)
-        turn = float(np.abs(step.reshape(-1, 6)[:, :3]).max())
-        if turn > MAX_TURN_RAD:
-            step *= MAX_TURN_RAD / turn
-        t = 1.0
-        while True:
-            trial = _update(state, t * step)
-            if _imbalance(gradient_and_hessian(trial, section, clamp, F, M, hessian=False)[0], tolerances) < i0 or t < 1e-6:
+        step = -np.linalg.solve(H, g[..., None])[..., 0]
+        turn = np.abs(step.reshape(step.shape[:-1] + (-1, 6))[..., :3]).max(axis=(-2, -1))
+        step *= np.minimum(1.0, MAX_TURN_RAD / np.maximum(turn, 1e-300))[..., None]
+        t = np.ones(lead)
+        trial = _update(state, step)
+        for _ in range(20):
+            worse = _imbalance(gradient_and_hessian(trial, section, clamp, F, M, hessian=False)[0], tolerances) >= i0
+            if not np.any(worse):
                 break
-            t *= 0.5
-        state = trial
-    blocks = gradient_and_hessian(state, section, clamp, F, M, hessian=False)[0].reshape(-1, 6)
+            t = np.where(worse, 0.5 * t, t)
+            trial = _update(state, t[..., None] * step)
+        state = _where(todo, trial, state)
+    blocks = gradient_and_hessian(state, section, clamp, F, M, hessian=False)[0]
+    blocks = blocks.reshape(blocks.shape[:-1] + (-1, 6))
     raise SolverError(f"cosserat rod: Newton did not converge in {max_iterations} iterations at {where}; unbalanced force "
-                      f"{np.linalg.norm(blocks[:, 3:]):.3e} N (tolerance {tolerances[0]:.3e}), moment {np.linalg.norm(blocks[:, :3]):.3e} N m "
-                      f"(tolerance {tolerances[1]:.3e})")
+                      f"{np.linalg.norm(blocks[..., 3:], axis=(-2, -1)).max():.3e} N (tolerance {np.min(tolerances[0]):.3e}), moment "
+                      f"{np.linalg.norm(blocks[..., :3], axis=(-2, -1)).max():.3e} N m (tolerance {np.min(tolerances[1]):.3e})")
 
 
-def _trust_region_step(g: np.ndarray, H: np.ndarray, radius: float) -> tuple[np.ndarray, float]:
-    """argmin g.p + p.H.p / 2 over |p| <= radius, and the model's decrease: p = -(H + mu I)^-1 g with the
-    least mu >= max(0, -lambda_min) that keeps |p| within the radius, over H's eigenvalues (in the hard
-    case, g orthogonal to the lowest mode, that mode fills the radius) [NocedalWright2006]_ sec. 4.3."""
+def _cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(L L^T)^-1 b for a stack of Cholesky factors (..., K, K) and right-hand sides (..., K)."""
+    y = np.linalg.solve(L, b[..., None])
+    return np.linalg.solve(np.swapaxes(L, -1, -2), y)[..., 0]
+
+
+def _trust_region_step(g: np.ndarray, H: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """argmin g.p + p.H.p / 2 over |p| <= radius per rod (g (..., K), H (..., K, K), radius (...)), and the
+    model's decrease: p = -(H + mu I)^-1 g with the least mu >= max(0, -lambda_min) that keeps |p| within
+    the radius, over H's eigenvalues; in the hard case (g orthogonal to the lowest mode) that mode fills
+    the radius [NocedalWright2006]_ sec. 4.3."""
+    try:  # the common case, every rod's Hessian positive definite and its Newton step inside its radius
+        L = np.linalg.cholesky(H)
+        p = -_cho_solve(L, g)
+        if np.all(np.linalg.norm(p, axis=-1) <= radius):
+            return p, -np.einsum("...k,...k->...", g, p) - 0.5 * np.einsum("...k,...kl,...l->...", p, H, p)
+    except np.linalg.LinAlgError:
+        pass
     lam, V = np.linalg.eigh(H)
-    c = V.T @ g
-    tiny = 1e-14 * max(float(np.abs(lam).max()), 1e-300)
+    c = np.einsum("...ki,...k->...i", V, g)
+    tiny = 1e-14 * np.maximum(np.abs(lam).max(axis=-1), 1e-300)
 
     def p_of(mu):
-        return -V @ (c / (lam + mu))
+        return -np.einsum("...ki,...i->...k", V, c / (lam + mu[..., None]))
 
-    if lam[0] > tiny:
-        p = p_of(0.0)
-        if np.linalg.norm(p) <= radius:
-            return p, float(-(g @ p) - 0.5 * p @ (H @ p))
-    lo = max(0.0, -lam[0]) + tiny
-    if np.linalg.norm(p_of(lo)) <= radius:  # the hard case: the lowest mode fills what is left of the radius
-        p = p_of(lo)
-        v = V[:, 0]
-        extra = np.sqrt(max(radius**2 - float(p @ p), 0.0))
-        p = p + (extra if float(v @ g) <= 0.0 else -extra) * v
-    else:
-        hi = lo + float(np.linalg.norm(g)) / radius + abs(float(lam[0]))
-        for _ in range(200):  # |p(mu)| falls monotonically in mu: bisect on 1 / |p| - 1 / radius (nearly linear)
-            mid = 0.5 * (lo + hi)
-            if np.linalg.norm(p_of(mid)) > radius:
-                lo = mid
-            else:
-                hi = mid
-            if hi - lo <= 1e-12 * hi:
-                break
-        p = p_of(hi)
-    return p, float(-(g @ p) - 0.5 * p @ (H @ p))
+    lo = np.maximum(0.0, -lam[..., 0]) + tiny
+    newton = lam[..., 0] > tiny
+    p0 = p_of(np.where(newton, 0.0, lo))
+    inside = newton & (np.linalg.norm(p0, axis=-1) <= radius)
+    p_lo = p_of(lo)
+    hard = ~inside & (np.linalg.norm(p_lo, axis=-1) <= radius)
+    hi = lo + np.linalg.norm(g, axis=-1) / radius + np.abs(lam[..., 0])
+    a, b = lo.copy(), hi
+    for _ in range(100):  # |p(mu)| falls monotonically in mu: bisection, each rod at once
+        mid = 0.5 * (a + b)
+        outside = np.linalg.norm(p_of(mid), axis=-1) > radius
+        a, b = np.where(outside, mid, a), np.where(outside, b, mid)
+    p = p_of(b)
+    v = V[..., :, 0]
+    extra = np.sqrt(np.maximum(radius**2 - np.sum(p_lo**2, axis=-1), 0.0))
+    sign = np.where(np.einsum("...k,...k->...", v, g) <= 0.0, 1.0, -1.0)
+    p_hard = p_lo + (sign * extra)[..., None] * v
+    p = np.where(inside[..., None], p0, np.where(hard[..., None], p_hard, p))
+    predicted = -np.einsum("...k,...k->...", g, p) - 0.5 * np.einsum("...k,...kl,...l->...", p, H, p)
+    return p, predicted
