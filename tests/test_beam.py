@@ -37,7 +37,19 @@ def rod():
     return sk, tip, root, report
 
 
+_SOLVED: dict = {}
+
+
 def _solve(rod, element: str, nu: float, clamp: str):
+    """(d, u, p, lam, mu, tip deflection) of the rod under the tip force; each case solved once per
+    module (the tests share four of their twelve cases; the answers are read, never changed)."""
+    key = (id(rod), element, nu, clamp)
+    if key not in _SOLVED:
+        _SOLVED[key] = _solve_case(rod, element, nu, clamp)
+    return _SOLVED[key]
+
+
+def _solve_case(rod, element: str, nu: float, clamp: str):
     sk, tip, root, _ = rod
     d = discretise(sk, element)
     tip_basis = FacetBasis(sk, d.u.elem, facets=tip, intorder=4)

@@ -64,7 +64,7 @@ def test_flat_probe_sliding_over_a_rod_sticks_then_slips_at_mu_n():
     While the tip sticks, the friction force grows with the slide (the rod bends); once the whole
     contact slips, the tangential force equals mu times the normal force."""
     radius, length, young, mu_friction = 2.5e-3, 9e-3, 1.5e6, 0.3
-    mesh, _ = build_mesh(Cylinder(radius, length), MeshParams(edge_length_m=1.5e-3, envelope_m=3.75e-5), progress=False)
+    mesh, _ = build_mesh(Cylinder(radius, length), MeshParams(edge_length_m=2.0e-3, envelope_m=5e-5), progress=False)
     sk = skfem_mesh(mesh.points, mesh.tets, mesh.edge_nodes, mesh.tet_edges)
     tip = facet_indices(sk, mesh.faces[mesh.face_tag == FaceTag.ROD_TIP])
     root = facet_indices(sk, mesh.faces[mesh.face_tag == FaceTag.BASE_BOTTOM])
@@ -73,7 +73,7 @@ def test_flat_probe_sliding_over_a_rod_sticks_then_slips_at_mu_n():
     K = assemble(d, lam, mu)
     fb = skfem.FacetBasis(sk, d.u.elem, facets=tip, intorder=4)
     fixed = d.u.get_dofs(facets=root).all()
-    eps_n = 100 * young / 1.5e-3
+    eps_n = 100 * young / 2.0e-3  # 100 E / h, h the mesh edge
     hist = ContactHistory.zero(np.asarray(fb.global_coordinates())[0].shape)
     x = np.zeros(d.n_dofs)
     height = length - 0.1e-3
