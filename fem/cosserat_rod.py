@@ -160,8 +160,8 @@ def straight_rod(section: RodSection, segments: int, root_m=(0.0, 0.0, 0.0), fra
     q0 = np.asarray(frame, dtype=float)
     q0 = q0 / np.linalg.norm(q0, axis=-1, keepdims=True)
     root = np.asarray(root_m, dtype=float)
-    q0, root = np.broadcast_arrays(q0, np.concatenate([root, np.zeros(root.shape[:-1] + (1,))], axis=-1))
-    root = root[..., :3]
+    lead = np.broadcast_shapes(q0.shape[:-1], root.shape[:-1])
+    q0, root = np.broadcast_to(q0, lead + (4,)), np.broadcast_to(root, lead + (3,))
     d3 = rotation_matrix(q0)[..., :, 2]
     s = np.linspace(0.0, section.length_m, segments + 1)
     x = root[..., None, :] + s[:, None] * d3[..., None, :]
@@ -184,14 +184,20 @@ def _joints(q: np.ndarray, clamp: np.ndarray) -> np.ndarray:
     return np.where(p[..., :1] < 0.0, -p, p)
 
 
-def strains(state: RodState, section: RodSection, clamp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(sigma (..., N, 3), kappa (..., N, 3)): each segment's shear-stretch and each joint's bend-twist strain."""
+def _kinematics(state: RodState, section: RodSection, clamp: np.ndarray):
+    """(R (..., N, 3, 3), b = R^T (x_{e+1} - x_e) / l (..., N, 3), p (..., N, 4), the joints' lengths (N,)):
+    what the strains and their derivatives are made of."""
     n = state.q.shape[-2]
     l = section.length_m / n
     R = rotation_matrix(state.q)
     b = np.einsum("...eji,...ej->...ei", R, np.diff(state.x, axis=-2) / l)
-    kappa = 2.0 * _joints(state.q, np.asarray(clamp, dtype=float))[..., 1:] / _voronoi(n, l)[:, None]
-    return b - np.array([0.0, 0.0, 1.0]), kappa
+    return R, b, _joints(state.q, np.asarray(clamp, dtype=float)), _voronoi(n, l)
+
+
+def strains(state: RodState, section: RodSection, clamp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sigma (..., N, 3), kappa (..., N, 3)): each segment's shear-stretch and each joint's bend-twist strain."""
+    _, b, p, lv = _kinematics(state, section, clamp)
+    return b - np.array([0.0, 0.0, 1.0]), 2.0 * p[..., 1:] / lv[:, None]
 
 
 def energy(state: RodState, section: RodSection, clamp: np.ndarray, tip_force_n=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -212,12 +218,9 @@ def gradient_and_hessian(state: RodState, section: RodSection, clamp: np.ndarray
     lead = state.q.shape[:-2]
     l = section.length_m / n
     S, Bk = section.S, section.B
-    R = rotation_matrix(state.q)  # (..., N, 3, 3)
+    R, b, p, lv = _kinematics(state, section, clamp)
     RT = np.swapaxes(R, -1, -2)
-    b = np.einsum("...eij,...ej->...ei", RT, np.diff(state.x, axis=-2) / l)
     nmat = (b - np.array([0.0, 0.0, 1.0])) * S  # the sections' force in their frames (N)
-    p = _joints(state.q, np.asarray(clamp, dtype=float))
-    lv = _voronoi(n, l)
     m = 2.0 * p[..., 1:] / lv[:, None] * Bk  # the joints' moment, in the frames of the joints (N m)
     pw, pv = p[..., 0], p[..., 1:]
     g = np.zeros(lead + (n, 6))  # block e: (psi_e, x_{e+1})
