@@ -65,7 +65,7 @@ from mlsim.errors import SolverError
 #: the largest rotation increment (rad) of a segment in one Newton iteration
 MAX_TURN_RAD = 0.5
 
-__all__ = ["RodSection", "RodState", "straight_rod", "energy", "gradient_and_hessian", "solve_static"]
+__all__ = ["RodSection", "RodState", "PointLoads", "straight_rod", "energy", "gradient_and_hessian", "solve_static"]
 
 
 @dataclass(frozen=True)
@@ -115,6 +115,32 @@ class RodState:
 
     x: np.ndarray
     q: np.ndarray
+
+
+@dataclass(frozen=True)
+class PointLoads:
+    """Dead forces on points carried by the segments (contact forces on a rod's tip face and sides).
+
+    Point k sits on segment ``segment[k]`` at p_k = (1 - s_k) x_e + s_k x_{e+1} + R_e rho_k: a fraction
+    s_k = ``along[k]`` of the way along its chord, offset by rho_k = ``offset_m[k]`` (m, in the segment's
+    frame) from the axis; it carries the spatial force ``force_n[k]`` (N), fixed in direction and size
+    (a dead load). All four may carry the rods' leading axes: segment, along (..., K); offset_m,
+    force_n (..., K, 3). A rod with fewer points pads with zero forces."""
+
+    segment: np.ndarray
+    along: np.ndarray
+    offset_m: np.ndarray
+    force_n: np.ndarray
+
+    def positions(self, state: "RodState", R: np.ndarray | None = None) -> np.ndarray:
+        """The points p (..., K, 3) m in ``state`` (R: its frames' rotations, if already made)."""
+        R = rotation_matrix(state.q) if R is None else R
+        e = np.broadcast_to(self.segment, self.force_n.shape[:-1])
+        s = np.broadcast_to(self.along, e.shape)[..., None]
+        x0 = np.take_along_axis(state.x, e[..., None], axis=-2)
+        x1 = np.take_along_axis(state.x, e[..., None] + 1, axis=-2)
+        Re = np.take_along_axis(R, e[..., None, None], axis=-3)
+        return (1.0 - s) * x0 + s * x1 + np.einsum("...kij,...kj->...ki", Re, np.broadcast_to(self.offset_m, self.force_n.shape))
 
 
 # --- quaternions (w, x, y, z), vectorised over leading axes ---------------------------------------
@@ -200,20 +226,24 @@ def strains(state: RodState, section: RodSection, clamp: np.ndarray) -> tuple[np
     return b - np.array([0.0, 0.0, 1.0]), 2.0 * p[..., 1:] / lv[:, None]
 
 
-def energy(state: RodState, section: RodSection, clamp: np.ndarray, tip_force_n=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """The rods' stored energy less the dead tip force's potential (J), shape (...)."""
+def energy(state: RodState, section: RodSection, clamp: np.ndarray, tip_force_n=(0.0, 0.0, 0.0), loads: PointLoads | None = None) -> np.ndarray:
+    """The rods' stored energy less the potential of the dead tip force and point loads (J), shape (...)."""
     n = state.q.shape[-2]
     l = section.length_m / n
     sigma, kappa = strains(state, section, clamp)
     stored = 0.5 * l * np.sum(sigma**2 * section.S, axis=(-2, -1)) + 0.5 * np.sum(_voronoi(n, l)[:, None] * kappa**2 * section.B, axis=(-2, -1))
-    return stored - np.sum(np.asarray(tip_force_n, dtype=float) * (state.x[..., -1, :] - state.x[..., 0, :]), axis=-1)
+    stored = stored - np.sum(np.asarray(tip_force_n, dtype=float) * (state.x[..., -1, :] - state.x[..., 0, :]), axis=-1)
+    if loads is not None:
+        stored = stored - np.sum(loads.force_n * (loads.positions(state) - state.x[..., :1, :]), axis=(-2, -1))
+    return stored
 
 
 def gradient_and_hessian(state: RodState, section: RodSection, clamp: np.ndarray, tip_force_n=(0.0, 0.0, 0.0),
-                         tip_moment_n_m=(0.0, 0.0, 0.0), hessian: bool = True):
+                         tip_moment_n_m=(0.0, 0.0, 0.0), hessian: bool = True, loads: PointLoads | None = None):
     """The energy's gradient g (..., 6N) and Hessian H (..., 6N, 6N) in the unknowns (psi_0, x_1, psi_1, x_2,
     ..., psi_{N-1}, x_N): each segment's rotation increment (in its own frame, q_e <- q_e cay(psi_e)) and
-    the node at its far end, at psi = 0. The dead tip moment (spatial, N m) enters g only."""
+    the node at its far end, at psi = 0. The dead tip moment (spatial, N m) enters g only; the point
+    loads' load stiffness (a dead force on an offset turns with its segment) enters H."""
     n = state.q.shape[-2]
     lead = state.q.shape[:-2]
     l = section.length_m / n
@@ -233,6 +263,20 @@ def gradient_and_hessian(state: RodState, section: RodSection, clamp: np.ndarray
     g[..., :-1, :3] += -pw[..., 1:, None] * m[..., 1:, :] - np.cross(pv[..., 1:, :], m[..., 1:, :])
     g[..., -1, 3:] -= np.asarray(tip_force_n, dtype=float)
     g[..., -1, :3] -= np.einsum("...ij,...j->...i", RT[..., -1, :, :], np.asarray(tip_moment_n_m, dtype=float))
+    if loads is not None:
+        # -f . ((1 - s) x_e + s x_{e+1} + R_e cay(psi_e) rho): x_{e+1} in block e, x_e in block e - 1 (the root's
+        # share dropped), psi_e's first order -rho x (R_e^T f), its second -(R_e^T f) . (psi x (psi x rho)) / 2
+        f = loads.force_n
+        e = np.broadcast_to(loads.segment, f.shape[:-1])
+        s_k = np.broadcast_to(loads.along, e.shape)[..., None]
+        rho = np.broadcast_to(loads.offset_m, f.shape)
+        f_body = np.einsum("...kji,...kj->...ki", np.take_along_axis(R, e[..., None, None], axis=-3), f)  # R_e^T f
+        gb = g.reshape(-1, n, 6)
+        batch = np.broadcast_to(np.arange(gb.shape[0]).reshape(lead + (1,)) if lead else np.zeros(1, dtype=int), e.shape)
+        np.add.at(gb, (batch, e, slice(3, 6)), -s_k * f)
+        before = e >= 1
+        np.add.at(gb, (batch[before], e[before] - 1, slice(3, 6)), -((1.0 - s_k) * f)[before])
+        np.add.at(gb, (batch, e, slice(0, 3)), -np.cross(rho, f_body))
     g = g.reshape(lead + (6 * n,))
     if not hessian:
         return g, None
@@ -268,6 +312,10 @@ def gradient_and_hessian(state: RodState, section: RodSection, clamp: np.ndarray
     D[..., :-1, :3, :3] += np.einsum("...ika,ik,...ikb->...iab", Ja[..., 1:, :, :], lvB[1:], Ja[..., 1:, :, :]) + diag[..., 1:, :, :]
     O[..., 1:, :3, :3] += np.einsum("...ika,ik,...ikb->...iab", Ja[..., 1:, :, :], lvB[1:], Jb[..., 1:, :, :]) \
         + 0.5 * (m[..., 1:, :, None] * pv[..., 1:, None, :] + _skew(m[..., 1:, :]) @ P[..., 1:, :, :])
+    if loads is not None:
+        load_k = -0.5 * (rho[..., :, None] * f_body[..., None, :] + f_body[..., :, None] * rho[..., None, :]) \
+            + np.einsum("...k,...k->...", rho, f_body)[..., None, None] * eye
+        np.add.at(D.reshape(-1, n, 6, 6), (batch, e, slice(0, 3), slice(0, 3)), load_k)
     H = np.zeros(lead + (n, n, 6, 6))
     idx = np.arange(n)
     H[..., idx, idx, :, :] = D
@@ -303,8 +351,8 @@ def _where(mask: np.ndarray, a: RodState, b: RodState) -> RodState:
 
 def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0), tip_moment_n_m=(0.0, 0.0, 0.0),
                  clamp=(1.0, 0.0, 0.0, 0.0), root_m=(0.0, 0.0, 0.0), start: RodState | None = None, increments: int = 1,
-                 rtol: float = 1e-10, max_iterations: int = 60) -> RodState:
-    """The rods' equilibrium under a dead tip force (N) and tip moment (N m), both spatial, applied in
+                 rtol: float = 1e-10, max_iterations: int = 60, loads: PointLoads | None = None) -> RodState:
+    """The rods' equilibrium under a dead tip force (N), tip moment (N m) and point ``loads`` (:class:`PointLoads`), all spatial, applied in
     ``increments`` equal load steps from ``start`` (default: the straight rods along the clamp frames'
     d3 from ``root_m``). Forces, moments, clamps and roots may carry leading axes: a batch of rods,
     solved together (each with its own trust region) and equal to solving each alone. Converged when
@@ -314,6 +362,11 @@ def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0)
     F, M = np.asarray(tip_force_n, dtype=float), np.asarray(tip_moment_n_m, dtype=float)
     if not (np.all(np.isfinite(F)) and np.all(np.isfinite(M))):
         raise ValueError(f"tip_force_n = {F.tolist()}, tip_moment_n_m = {M.tolist()}: must be finite")
+    if loads is not None and not (np.all(np.isfinite(loads.force_n)) and np.all(np.isfinite(loads.offset_m))):
+        raise ValueError("loads: the point forces and offsets must be finite")
+    if loads is not None and (np.any(np.asarray(loads.segment) < 0) or np.any(np.asarray(loads.segment) >= segments)
+                              or np.any(np.asarray(loads.along) < 0.0) or np.any(np.asarray(loads.along) > 1.0)):
+        raise ValueError(f"loads: segment must lie in 0..{segments - 1} and along in [0, 1]")
     clamp = np.asarray(clamp, dtype=float)
     clamp = clamp / np.linalg.norm(clamp, axis=-1, keepdims=True)
     lead = np.broadcast_shapes(F.shape[:-1], M.shape[:-1], clamp.shape[:-1], np.shape(root_m)[:-1],
@@ -323,14 +376,17 @@ def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0)
     state = start if start is not None else straight_rod(section, segments, np.broadcast_to(np.asarray(root_m, dtype=float), lead + (3,)), clamp)
     eps = np.finfo(float).eps
     load = np.maximum(np.maximum(np.linalg.norm(F, axis=-1), np.linalg.norm(M, axis=-1) / section.length_m), section.B.max() / section.length_m**2)
+    if loads is not None:
+        load = np.maximum(load, np.linalg.norm(loads.force_n, axis=-1).sum(axis=-1))
     force_tol = np.maximum(rtol * load, 100.0 * eps * section.S.max())
     l = section.length_m / state.q.shape[-2]
     tolerances = (force_tol, np.maximum(force_tol * l, 100.0 * eps * section.B.max() / l))
     # the matrices are small (6 N): BLAS threads only fight each other (60x slower on a loaded 2-core machine)
     with threadpool_limits(1, user_api="blas"):
         for k in range(1, increments + 1):
+            part = None if loads is None else PointLoads(loads.segment, loads.along, loads.offset_m, loads.force_n * (k / increments))
             state = _newton(state, section, clamp, F * k / increments, M * k / increments, tolerances, max_iterations,
-                            f"load step {k}/{increments}")
+                            f"load step {k}/{increments}", part)
     return state
 
 
@@ -342,7 +398,7 @@ def _imbalance(g: np.ndarray, tolerances) -> np.ndarray:
 
 
 def _newton(state: RodState, section: RodSection, clamp: np.ndarray, F: np.ndarray, M: np.ndarray, tolerances, max_iterations: int,
-            where: str) -> RodState:
+            where: str, loads: PointLoads | None = None) -> RodState:
     """Newton's method from ``state`` under (F, M), every rod of the batch at once. Under a dead force
     alone (conservative): a trust region on each rod's energy, its model step solved exactly over the
     Hessian's eigenvalues ([NocedalWright2006]_ Algorithm 4.3), which follows a column past its buckling
@@ -357,7 +413,7 @@ def _newton(state: RodState, section: RodSection, clamp: np.ndarray, F: np.ndarr
     radius = np.full(lead, MAX_TURN_RAD)
     conservative = not np.any(M)
     for _ in range(max_iterations):
-        g, H = gradient_and_hessian(state, section, clamp, F, M)
+        g, H = gradient_and_hessian(state, section, clamp, F, M, loads=loads)
         i0 = _imbalance(g, tolerances)
         todo = i0 > 1.0
         if not np.any(todo):
@@ -365,14 +421,17 @@ def _newton(state: RodState, section: RodSection, clamp: np.ndarray, F: np.ndarr
         if conservative:
             step_s, predicted = _trust_region_step(g / scale, H / np.outer(scale, scale), radius)
             trial = _update(state, step_s / scale)
-            e_state = energy(state, section, clamp, F)
-            actual = e_state - energy(trial, section, clamp, F)
+            e_state = energy(state, section, clamp, F, loads)
+            actual = e_state - energy(trial, section, clamp, F, loads)
             ratio = np.where(predicted > 0.0, actual / np.where(predicted > 0.0, predicted, 1.0), 0.0)
             full = np.linalg.norm(step_s, axis=-1) > 0.99 * radius
             radius = np.where(ratio < 0.25, 0.25 * radius, np.where((ratio > 0.75) & full, np.minimum(2.0 * radius, 16.0 * MAX_TURN_RAD), radius))
             # near the answer the energy's change is below its round-off (either sign): then a lower imbalance is progress
-            noise = 1e-12 * (np.abs(e_state) + np.abs(np.sum(F * (state.x[..., -1, :] - state.x[..., 0, :]), axis=-1)))
-            accept = (ratio > 1e-4) | ((actual >= -noise) & (_imbalance(gradient_and_hessian(trial, section, clamp, F, M, hessian=False)[0], tolerances) < i0))
+            work = np.abs(np.sum(F * (state.x[..., -1, :] - state.x[..., 0, :]), axis=-1))
+            if loads is not None:
+                work = work + np.abs(np.sum(loads.force_n * (loads.positions(state) - state.x[..., :1, :]), axis=(-2, -1)))
+            noise = 1e-12 * (np.abs(e_state) + work)
+            accept = (ratio > 1e-4) | ((actual >= -noise) & (_imbalance(gradient_and_hessian(trial, section, clamp, F, M, hessian=False, loads=loads)[0], tolerances) < i0))
             state = _where(todo & accept, trial, state)
             if np.all(radius[todo] < 1e-12):
                 break
@@ -383,13 +442,13 @@ def _newton(state: RodState, section: RodSection, clamp: np.ndarray, F: np.ndarr
         t = np.ones(lead)
         trial = _update(state, step)
         for _ in range(20):
-            worse = _imbalance(gradient_and_hessian(trial, section, clamp, F, M, hessian=False)[0], tolerances) >= i0
+            worse = _imbalance(gradient_and_hessian(trial, section, clamp, F, M, hessian=False, loads=loads)[0], tolerances) >= i0
             if not np.any(worse):
                 break
             t = np.where(worse, 0.5 * t, t)
             trial = _update(state, t[..., None] * step)
         state = _where(todo, trial, state)
-    blocks = gradient_and_hessian(state, section, clamp, F, M, hessian=False)[0]
+    blocks = gradient_and_hessian(state, section, clamp, F, M, hessian=False, loads=loads)[0]
     blocks = blocks.reshape(blocks.shape[:-1] + (-1, 6))
     raise SolverError(f"cosserat rod: Newton did not converge in {max_iterations} iterations at {where}; unbalanced force "
                       f"{np.linalg.norm(blocks[..., 3:], axis=(-2, -1)).max():.3e} N (tolerance {np.min(tolerances[0]):.3e}), moment "

@@ -851,7 +851,9 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
     if inertia is not None:
         timings["rod_first_mode_hz"] = inertia.omega_1 / (2.0 * np.pi)
     t_loop = time.perf_counter()
+    step_ms = np.zeros(S)
     for s, t in enumerate(steps):
+        t_step = time.perf_counter()
         state = trajectory.advance(load, state, t, normal_now)
         case = f"step {s} (t = {t * 1e3:.1f} ms)"
         before = problem.iterations
@@ -909,8 +911,11 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
         reaction[s] = [unbalanced[comp_fixed == c].sum() for c in range(3)]
         if inertia is not None:
             inertia.remember(x, r_int)
+        step_ms[s] = 1e3 * (time.perf_counter() - t_step)
         bar(s + 1)
     timings["contact_steps"] = time.perf_counter() - t_loop
+    # each step's wall time, its fields included (benchmarks/bench_tiers.py: median and worst by kind of step)
+    timings["contact_step_ms"] = step_ms.tolist()
     timings["tangent_factorisations"] = problem.factorisations + problem.linearisations
     timings["contact_iterations"] = problem.contact_iterations
     timings["penalty_newton_steps"] = problem.fallbacks

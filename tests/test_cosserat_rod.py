@@ -181,3 +181,76 @@ def test_a_batch_of_rods_is_each_rod_alone():
         alone = cr.solve_static(SLENDER, 12, tip_force_n=forces[k], clamp=clamps[k], root_m=roots[k], increments=4)
         np.testing.assert_allclose(together.x[k], alone.x, rtol=0, atol=1e-6 * LENGTH_M)
     assert together.x[3, -1, 0] > 0.3 * LENGTH_M  # the fourth bent over past its Euler load
+
+
+# --- point loads (the contact forces on a rod's tip face and sides) ------------------------------------
+
+def _some_loads(n: int, rng) -> cr.PointLoads:
+    segment = np.array([0, 2, n - 1, n - 1])
+    along = np.array([0.3, 0.5, 1.0, 0.0])
+    offset = 1e-3 * rng.standard_normal((4, 3))
+    force = 0.02 * rng.standard_normal((4, 3))
+    return cr.PointLoads(segment, along, offset, force)
+
+
+def test_point_loads_gradient_and_hessian_are_the_energys_derivatives():
+    """Dead forces on offset points of several segments (the root's segment included): central
+    differences of the energy give g and H, the load stiffness of a force on a turning offset in H."""
+    rng = np.random.default_rng(7)
+    section = cr.RodSection.circular(0.01, 1e-3, 1e6, 0.45)
+    n = 5
+    state = _additive(cr.straight_rod(section, n), 0.3 * rng.standard_normal(6 * n) * np.tile([1, 1, 1, 1e-3, 1e-3, 1e-3], n))
+    loads = _some_loads(n, rng)
+    g, H = cr.gradient_and_hessian(state, section, CLAMP, loads=loads)
+    scale = np.tile([1.0, 1.0, 1.0, 1e-3, 1e-3, 1e-3], n)
+    h = 1e-4 * scale
+
+    def E(d):
+        return cr.energy(_additive(state, d), section, CLAMP, loads=loads)
+
+    eye = np.diag(h)
+    g_fd = np.array([(E(eye[j]) - E(-eye[j])) / (2 * h[j]) for j in range(6 * n)])
+    H_fd = np.array([[(E(eye[j] + eye[k]) - E(eye[j] - eye[k]) - E(-eye[j] + eye[k]) + E(-eye[j] - eye[k])) / (4 * h[j] * h[k])
+                      for k in range(6 * n)] for j in range(6 * n)])
+    assert np.abs(g - g_fd).max() < 1e-6 * np.abs(g).max()
+    assert np.abs(H - H_fd).max() < 1e-6 * np.abs(H).max()
+    np.testing.assert_allclose(H, H.T, atol=1e-14 * np.abs(H).max())
+
+
+def test_a_point_load_on_the_tips_axis_is_the_tip_force():
+    """A force on the last segment's far end, on its axis, is the dead tip force (to the solver's tolerance)."""
+    force = np.array([2.0, -1.0, -0.5]) * EI / LENGTH_M**2
+    tip = cr.solve_static(SLENDER, 12, tip_force_n=force, increments=2)
+    loads = cr.PointLoads(np.array([11]), np.array([1.0]), np.zeros((1, 3)), force[None])
+    point = cr.solve_static(SLENDER, 12, loads=loads, increments=2)
+    np.testing.assert_allclose(point.x, tip.x, rtol=0, atol=1e-8 * LENGTH_M)
+
+
+def test_an_offset_couple_on_the_tip_face_bends_the_rod_into_a_circle():
+    """Two equal and opposite axial forces on the tip face, offset +-a along d1, are a couple 2 a F about d2.
+    Re-aimed along the face's d3 until they turn with it (a follower couple), they bend the inextensible
+    rod into a circle of radius EI / M; here the tip turns by M L / EI = 1 rad. Checks the offsets'
+    moment arm in a turned frame."""
+    a, n = 1e-3, 24
+    M = EI / LENGTH_M
+    F = M / (2 * a)
+    segment, along, offset = np.array([n - 1, n - 1]), np.array([1.0, 1.0]), np.array([[a, 0.0, 0.0], [-a, 0.0, 0.0]])
+    state, d3 = None, np.array([0.0, 0.0, 1.0])
+    for k in list(range(1, 11)) + [10] * 10:  # ten increments, then the direction settled
+        state = cr.solve_static(SLENDER, n, loads=cr.PointLoads(segment, along, offset, np.stack([-F * k / 10 * d3, F * k / 10 * d3])), start=state)
+        d3 = cr.rotation_matrix(state.q[-1])[:, 2]
+    radius, angle = EI / M, LENGTH_M * M / EI
+    np.testing.assert_allclose(state.x[-1], [radius * (1 - math.cos(angle)), 0.0, radius * math.sin(angle)], rtol=0, atol=1e-3 * LENGTH_M)
+
+
+def test_point_loads_on_a_batch_are_each_rod_alone():
+    rng = np.random.default_rng(11)
+    n = 8
+    loads = [cr.PointLoads(np.array([3, 7, 7]), np.array([0.5, 1.0, 1.0]), 1e-3 * rng.standard_normal((3, 3)),
+                           EI / LENGTH_M**2 * rng.standard_normal((3, 3))) for _ in range(3)]
+    batch = cr.PointLoads(np.stack([l.segment for l in loads]), np.stack([l.along for l in loads]), np.stack([l.offset_m for l in loads]),
+                          np.stack([l.force_n for l in loads]))
+    together = cr.solve_static(SLENDER, n, loads=batch, root_m=np.zeros((3, 3)), increments=2)
+    for k in range(3):
+        alone = cr.solve_static(SLENDER, n, loads=loads[k], increments=2)
+        np.testing.assert_allclose(together.x[k], alone.x, rtol=0, atol=1e-7 * LENGTH_M)
