@@ -50,7 +50,7 @@ import numpy as np
 import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController
 
-from fem import condensed, contact_admm, field_kernels, fields, rod_kinematics, trajectory
+from fem import condensed, contact_admm, field_kernels, fields, rod_exact, rod_kinematics, trajectory
 from fem.episode import (  # the shared pieces, here too for fem.quasistatic's callers
     _EPISODE_ARRAYS,
     CONTACT_MAX_ITERATIONS,
@@ -484,9 +484,10 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     t0 = time.perf_counter()
     if settings.rod_kinematics not in rod_kinematics.ROD_KINEMATICS:
         raise ValueError(f'fidelity.solve.rod_kinematics = "{settings.rod_kinematics}": choose one of {", ".join(rod_kinematics.ROD_KINEMATICS)}')
-    second_order = settings.rod_kinematics == "second_order"
+    second_order = settings.rod_kinematics in ("second_order", "cosserat")
+    exact = settings.rod_kinematics == "cosserat"
     if second_order and settings.contact_solver != "admm":
-        raise ValueError('fidelity.solve.rod_kinematics = "second_order" needs fidelity.solve.contact_solver = "admm"')
+        raise ValueError(f'fidelity.solve.rod_kinematics = "{settings.rod_kinematics}" needs fidelity.solve.contact_solver = "admm"')
     kinematics = None
     if settings.tier == "reduced":
         # contact at every point near the path, rod by rod: each rod's points with their own compliance,
@@ -512,14 +513,16 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             # the sections' response to each point's force as the vertices see it: its patch's far-field
             # response plus, on its own rod, its own exact response (the displacement field's rule below)
             cols = (3 * reduced.point_patch[keep][:, None] + np.arange(3)).ravel()
-            O = sections.O.tocsc()
+            O = (rod_exact.root_observation(mesh.points, sections) if exact else sections.O).tocsc()
             A = np.asarray((O @ reduced.displacement_basis.T) @ reduced.displacement_coeff[:, cols], dtype=float)
             for r, (_, _, rows_d, own_d) in reduced.local_responses().items():
                 on_rod = np.flatnonzero(rod == r)
                 if len(on_rod):
                     local = np.searchsorted(np.flatnonzero(reduced.point_rod == r), keep[on_rod])
                     A[:, (3 * on_rod[:, None] + np.arange(3)).ravel()] += O[:, rows_d] @ own_d[:, (3 * local[:, None] + np.arange(3)).ravel()]
-            kinematics = rod_kinematics.RodKinematics(sections, A, sections.O @ reduced.displacement_gravity.astype(float), X, rod)
+            obs_0 = O @ reduced.displacement_gravity.astype(float)
+            kinematics = (rod_exact.CosseratKinematics(sections, _rod_section(scene), A, obs_0, X, rod) if exact
+                          else rod_kinematics.RodKinematics(sections, A, obs_0, X, rod))
             timings["precompute_rod_kinematics"] = time.perf_counter() - t_k
             timings["precompute"] += timings["precompute_rod_kinematics"]
     else:
@@ -530,9 +533,10 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         X, area, rod = points.X, points.area_m2, points.rod
         if second_order:
             sections = _rod_sections(scene, mesh, rod, setup.tip_z_m)
-            O_dofs = _on_dofs(sections.O, body)
+            O_dofs = _on_dofs(rod_exact.root_observation(mesh.points, sections) if exact else sections.O, body)
             C, seen = compliance(body, points.W, observe=O_dofs)
-            kinematics = rod_kinematics.RodKinematics(sections, seen, O_dofs @ body.x_gravity, X, rod)
+            kinematics = (rod_exact.CosseratKinematics(sections, _rod_section(scene), seen, O_dofs @ body.x_gravity, X, rod) if exact
+                          else rod_kinematics.RodKinematics(sections, seen, O_dofs @ body.x_gravity, X, rod))
         else:
             C = compliance(body, points.W)
         u0 = (points.W.T @ body.x_gravity).reshape(-1, 3)
@@ -565,7 +569,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     worst_bend = [0.0, -1]  # the largest bending_ratio and its step
     n_rods = int(mesh.tet_rod.max()) + 1
     rod_height = scene.sensor.rod.height_mm * 1e-3
-    euler_n = _euler_load_n(scene) if second_order else None
+    # the Cosserat rods follow a rod past its Euler load: only second order's P-delta runs away there
+    euler_n = _euler_load_n(scene) if second_order and not exact else None
 
     steps = grid.step_times_s
     S = len(steps)
@@ -713,7 +718,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         reaction = body.reaction(Xs, F)[frame_of] + (0.0 if extras is None else extras.sum(axis=1))
         total = forces.sum(axis=1)
     if kinematics is not None:
-        disp = disp + np.stack([kinematics.vertex_correction(disp[i], mesh.points) for i in range(U)])
+        disp = disp + np.stack([kinematics.vertex_correction(disp[i], mesh.points, forces=forces[first[i]]) for i in range(U)])
     timings["fields"] = time.perf_counter() - t0
     # each step's share of the field recovery: the distinct loads share it, a repeat is a copy
     timings["fields_step_ms"] = np.where(np.isin(np.arange(S), first), 1e3 * timings["fields"] / U, 0.0).tolist()
@@ -814,6 +819,16 @@ def _all_rod_sections(scene, mesh, tip_z_m: float) -> "rod_kinematics.RodSection
             except ValueError:  # a slab with fewer than 3 vertices
                 continue
     return kept[key]
+
+
+def _rod_section(scene) -> "rod_exact.cr.RodSection":
+    """The Cosserat section of the scene's rods (fem.rod_exact.layered_section, the layers from the scene)."""
+    from fem.geometry import RodArray
+
+    g = RodArray.from_sensor(scene.sensor)
+    mats = [scene.material(r) for r in ("absorber", "ml_layer", "core")]
+    return rod_exact.layered_section(g.rod_radius_m, g.rod_height_m, [m.young_modulus_pa.value for m in mats],
+                                     [m.poisson_ratio.value for m in mats], [g.absorber_m, g.ml_m])
 
 
 def _euler_load_n(scene) -> float:

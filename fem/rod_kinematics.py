@@ -45,7 +45,7 @@ import scipy.sparse as sp
 __all__ = ["RodSections", "ThinSlabError", "rod_sections", "axis_drop", "rotation_offset", "second_order_points", "pdelta_load", "RodKinematics",
            "ROD_KINEMATICS", "first_order_force_error"]
 
-ROD_KINEMATICS = ("first_order", "second_order")
+ROD_KINEMATICS = ("first_order", "second_order", "cosserat")  # "cosserat": fem.rod_exact
 N_SLABS = 8  # sections along a rod; 8 on the tiny mesh's 2.5 mm edges: each slab holds 2-3 vertex layers
 FLAT_SLAB = 0.02  # a slab thinner than this x its width (smallest / largest spread) is fitted as a plane
 
@@ -335,7 +335,7 @@ class RodKinematics:
         load = pdelta_load(f_points, tip_h, self.point_rod, self.sections.length_m) if self.pdelta else np.zeros_like(f_points)
         return q, load
 
-    def vertex_correction(self, U: np.ndarray, points: np.ndarray) -> np.ndarray:
+    def vertex_correction(self, U: np.ndarray, points: np.ndarray, forces: np.ndarray | None = None) -> np.ndarray:
         """The second-order displacement (P, 3) m of the mesh's vertices (points (P, 3) m) for a linear
         vertex displacement U (P, 3) m: per rod, the section rotation theta(z) interpolated between
         slab mid-heights and the tip face, 1/2 theta x (theta x r) about the axis at z, and the axis'

@@ -535,8 +535,10 @@ class SolveFidelity(_Model):
     nonlinear_newton: Literal["penalty", "condensed"] = "condensed"
     # linear/reduced tiers (admm): "second_order" adds the bent rods' rigid-rotation terms (tip drop,
     # tilted tip face) to the contact kinematics and the displacement output, and the P-delta load of
-    # their axial contact force (fem.rod_kinematics); "first_order": the plain small-strain body
-    rod_kinematics: Literal["first_order", "second_order"] = "first_order"
+    # their axial contact force (fem.rod_kinematics); "cosserat": each loaded rod a geometrically exact
+    # (Cosserat) rod on the body's root motion, its nonlinear part added to the points and vertices and its
+    # bent root moment to the body (fem.rod_exact); "first_order": the plain small-strain body
+    rod_kinematics: Literal["first_order", "second_order", "cosserat"] = "first_order"
     # nonlinear tier: "quasi_static" (each step an equilibrium: no answer past a limit point, where a rod
     # buckles or snaps back) or "backward_euler" (implicit dynamics with the elastomer's inertia and damping,
     # energy-stable at any step; fem.dynamics, fem.finite_strain): the swipe that buckles rods and releases them

@@ -1,0 +1,267 @@
+"""Geometrically exact rod kinematics for the linear tiers (``fidelity.solve.rod_kinematics = "cosserat"``).
+
+The ``linear`` and ``reduced`` tiers solve the sensor as a small-strain, small-rotation body: the
+contact points move by u = u_0 + E f (E the body's point compliance). The sensor's rods turn by
+tens of degrees while their strains stay at a few per cent (issue 38), so what a linear body misses
+is the rods' large rotation: their tips drop and turn, and an axial force on a bent rod adds its
+moment (P-delta). :mod:`fem.rod_kinematics` adds the second-order terms of that; this module adds
+all of it, by a geometrically exact rod per rod:
+
+    x_k = X_k + u_0,k + (E (f + f_pd))_k + q_k(f),
+
+    q_k(f) = p_k(f) - [X_k + u_r + theta_r x (X_k - X_r) + (G (f + f_pd))_k].
+
+- p_k(f): where point k sits on the rod's discrete Cosserat rod (:mod:`fem.cosserat_rod`: exact for
+  any rotation) in equilibrium under the rod's contact forces f (dead), clamped at the root where the
+  body puts it: root translation u_r and rotation theta_r are the body's linear response
+  (``obs_0 + A f``, the least-squares motion of the rod's root ring of vertices), the root frame
+  exp(theta_r) exactly;
+- G f: the same rod's linear response (its Hessian at the straight state), and u_r + theta_r x r the
+  root's motion to first order: what E f already holds of the rod. The bracket is the Cosserat rod
+  linearised; q is the rod's nonlinear part alone, so at small loads the tier is the linear body's,
+  whatever the rod model's own small-load error;
+- f_pd: the P-delta load, the horizontal force on the rod's loaded points whose moment about the
+  root is the difference between the root moment in the bent rod, sum (p_k - x_r) x f_k, and in the
+  straight one, sum (X_k - X_r) x f_k. The body carries it, so the base turns under the bent rod's
+  true root moment and the stresses hold it; its own rod deflection G f_pd is taken out of q (p_k holds
+  the rod's P-delta already).
+
+The rods' section: the layered round section (E A, E I, G J summed over the layers, shear
+kappa G A with Cowper's coefficient of the core's Poisson ratio, :func:`layered_section`). It enters
+only through q, the nonlinear part, and through the P-delta moment, so its small-load error (against
+the rod's 3-D FEM) enters the answer times how nonlinear the step is.
+
+What this is not: a finite-strain body. Stresses are the linear body's under f + f_pd: the P-delta
+moment enters as a tip load (its distribution along the rod is the tip load's, linear in height, where
+the bent rod's follows its deflection), and a section's stress is not turned with it (von Mises is
+invariant under the turn; the emission reads von Mises). The base is linear. The contact loop treats
+q and f_pd as the second-order kinematics' h: frozen over a linearisation, re-evaluated at its
+solution, Anderson-mixed (:func:`fem.contact_admm.solve_step`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from fem import cosserat_rod as cr
+from fem.rod_kinematics import RodSections, _face_rotation_rows
+
+__all__ = ["SEGMENTS", "layered_section", "root_observation", "attachments", "CosseratKinematics"]
+
+#: segments per rod. Bisshopp and Drucker's cantilever at alpha = 3 is within 0.3 % at 8 segments
+#: (second order: 0.07 % at 32, tests/test_cosserat_rod.py), below the tiers' stated errors
+SEGMENTS = 8
+
+
+def layered_section(radius_m: float, height_m: float, young_pa, poisson, thickness_m) -> cr.RodSection:
+    """The Cosserat section of a round rod coated by layers (outside in; the last the core):
+    E A = sum E_i A_i, E I = sum E_i I_i, G J = sum G_i 2 I_i (each layer's annulus), kappa G A =
+    kappa(nu_core) sum G_i A_i with Cowper's shear coefficient of a solid round section of the core's
+    Poisson ratio (a simplification: the layered section's own coefficient is not modelled).
+
+    young_pa, poisson (k,); thickness_m (k - 1,) of all but the core."""
+    from fem.beam_theory import circular_shear_coefficient
+
+    E = np.asarray(young_pa, dtype=float)
+    nu = np.asarray(poisson, dtype=float)
+    t = np.asarray(thickness_m, dtype=float)
+    if len(t) != len(E) - 1 or len(nu) != len(E) or np.any(t < 0) or np.any(E <= 0) or radius_m <= 0 or height_m <= 0:
+        raise ValueError(f"layered_section: radius {radius_m} m, height {height_m} m, moduli {E} Pa, Poisson ratios {nu}, thicknesses {t} m: "
+                         "need positive sizes and moduli and one thickness per layer outside the core")
+    outer = (radius_m - np.concatenate([[0.0], np.cumsum(t)])).clip(min=0.0)
+    inner = np.append(outer[1:], 0.0)
+    area = np.pi * (outer**2 - inner**2)
+    inertia = 0.25 * np.pi * (outer**4 - inner**4)
+    G = E / (2.0 * (1.0 + nu))
+    ei = float(np.sum(E * inertia))
+    return cr.RodSection(height_m, float(np.sum(E * area)), circular_shear_coefficient(float(nu[-1])) * float(np.sum(G * area)),
+                         (ei, ei), float(np.sum(G * 2.0 * inertia)))
+
+
+def root_observation(points: np.ndarray, sections: RodSections, tol: float = 1e-7) -> sp.csr_matrix:
+    """O (6 R, 3 P) on vertex displacements (vertex-major): per rod j of ``sections.rods``, the mean
+    translation (rows 6 j .. 6 j + 2) and the rotation (rows 6 j + 3 .. 6 j + 5: the plane's tilt and
+    twist, :func:`fem.rod_kinematics._face_rotation_rows`) of the rod's vertices on the base's top
+    (its root ring)."""
+    rows, cols, vals = [], [], []
+    for j, verts in enumerate(sections.vertices):
+        ring = verts[np.abs(points[verts, 2] - sections.base_z_m) <= tol]
+        if len(ring) < 3:
+            raise ValueError(f"rod {sections.rods[j]}: {len(ring)} vertices at the base's top z = {sections.base_z_m:.9g} m: "
+                             "the mesh has no root ring there")
+        for c in range(3):
+            rows.append(np.full(len(ring), 6 * j + c))
+            cols.append(3 * ring + c)
+            vals.append(np.full(len(ring), 1.0 / len(ring)))
+        rr, cc, vv = _face_rotation_rows(points, ring)
+        rows.append(6 * j + 3 + rr)
+        cols.append(cc)
+        vals.append(vv)
+    R = len(sections.rods)
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(6 * R, 3 * len(points)))
+
+
+def attachments(X: np.ndarray, centre_xy: np.ndarray, base_z_m: float, length_m: float, segments: int):
+    """Where points X (m, 3) m sit on a straight rod along z from (centre_xy, base_z_m): segment (m,),
+    the fraction along it (m,) and the offset from the axis (m, 3) m (in the reference frame, the
+    segments' frame). Points above the tip (none on a mesh) are put on the tip face."""
+    l = length_m / segments
+    height = np.clip(X[:, 2] - base_z_m, 0.0, length_m)
+    segment = np.minimum((height / l).astype(int), segments - 1)
+    along = np.clip(height / l - segment, 0.0, 1.0)
+    offset = np.zeros_like(X)
+    offset[:, :2] = X[:, :2] - centre_xy
+    return segment, along, offset
+
+
+def _rotation_quaternion(theta: np.ndarray) -> np.ndarray:
+    """exp(theta) as unit quaternions (..., 4) for rotation vectors theta (..., 3)."""
+    angle = np.linalg.norm(theta, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(a/2)/a -> 1/2 as a -> 0
+    factor = np.where(angle > 1e-12, np.sin(half) / np.where(angle > 1e-12, angle, 1.0), 0.5)
+    return np.concatenate([np.cos(half), factor * theta], axis=-1)
+
+
+class CosseratKinematics:
+    """The per-episode operators of the geometrically exact rod kinematics (the interface of
+    :class:`fem.rod_kinematics.RodKinematics`, which the contact loop and the tiers call).
+
+    sections: the rods carrying contact points; section: their Cosserat section; A (6 R, 3 m) the root
+    observation's response per unit point force and obs_0 (6 R,) its value without contact (gravity),
+    both of :func:`root_observation`; X (m, 3) m the contact points; point_rod (m,) their mesh rods (-1:
+    the base)."""
+
+    pdelta = True
+
+    def __init__(self, sections: RodSections, section: cr.RodSection, A: np.ndarray, obs_0: np.ndarray, X: np.ndarray, point_rod: np.ndarray,
+                 segments: int = SEGMENTS):
+        self.sections = sections
+        self.section = section
+        self.segments = segments
+        self.A = np.ascontiguousarray(A, dtype=float)
+        self.obs_0 = np.asarray(obs_0, dtype=float)
+        self.X = np.asarray(X, dtype=float)
+        index = {int(r): j for j, r in enumerate(sections.rods)}
+        self.point_rod = np.array([index.get(int(r), -1) for r in point_rod], dtype=int)
+        R = len(sections.rods)
+        self.root_X = np.column_stack([sections.centre[:, :2], np.full(R, sections.base_z_m)])
+        self._points = [np.flatnonzero(self.point_rod == j) for j in range(R)]
+        self._attach = [attachments(self.X[p], sections.centre[j, :2], sections.base_z_m, sections.length_m, segments)
+                        for j, p in enumerate(self._points)]
+        # the straight rod's Hessian (the same for every rod: a rod's place does not change it)
+        straight = cr.straight_rod(section, segments)
+        _, H0 = cr.gradient_and_hessian(straight, section, np.array([1.0, 0.0, 0.0, 0.0]))
+        self._H0_factor = np.linalg.cholesky(H0)
+        self._warm: dict[int, cr.RodState] = {}
+
+    # --- the pieces -----------------------------------------------------------------------------------
+
+    def resultant_change(self, df: np.ndarray) -> float:
+        """sum over rods of |sum of df (m, 3) N over the rod's points|, plus |df| of points off the rods (N)."""
+        on = self.point_rod >= 0
+        R = len(self.sections.rods)
+        per_rod = np.stack([np.bincount(self.point_rod[on], weights=df[on, c], minlength=R) for c in range(3)], axis=1)
+        return float(np.linalg.norm(per_rod, axis=1).sum() + np.linalg.norm(df[~on], axis=1).sum())
+
+    def root_motion(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The roots' translation (R, 3) m and rotation vector (R, 3) rad at point forces f (m, 3) N."""
+        obs = (self.obs_0 + self.A @ f.ravel()).reshape(-1, 6)
+        return obs[:, :3], obs[:, 3:]
+
+    def _linear_dofs(self, loads: cr.PointLoads) -> np.ndarray:
+        """The straight rod's linear response (..., 6 N) to ``loads`` (its Hessian's solve)."""
+        straight = cr.straight_rod(self.section, self.segments)
+        g0, _ = cr.gradient_and_hessian(straight, self.section, np.array([1.0, 0.0, 0.0, 0.0]), loads=loads, hessian=False)
+        return -cr._cho_solve(self._H0_factor, g0)
+
+    @staticmethod
+    def _linear_positions(d: np.ndarray, segment: np.ndarray, along: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """The displacement (k, 3) of attached points for the linear dofs d (6 N,) of a rod clamped at the origin."""
+        blocks = d.reshape(-1, 6)
+        node = np.concatenate([np.zeros((1, 3)), blocks[:, 3:]])  # x_0 .. x_N
+        psi = blocks[segment, :3]
+        return (1.0 - along)[:, None] * node[segment] + along[:, None] * node[segment + 1] + np.cross(psi, offset)
+
+    def solve_rods(self, f: np.ndarray, rods: np.ndarray | None = None) -> dict[int, tuple[cr.RodState, cr.PointLoads, np.ndarray, np.ndarray]]:
+        """Each loaded rod (or those of ``rods``) in equilibrium under its points' forces f (m, 3) N, clamped
+        where the body puts its root: {rod: (state, its loads, root translation, root rotation)}."""
+        u_r, th_r = self.root_motion(f)
+        out = {}
+        for j in (range(len(self.sections.rods)) if rods is None else rods):
+            pts = self._points[j]
+            if len(pts) == 0 or not np.any(f[pts]):
+                continue
+            segment, along, offset = self._attach[j]
+            loads = cr.PointLoads(segment, along, offset, f[pts])
+            root = self.root_X[j] + u_r[j]
+            clamp = _rotation_quaternion(th_r[j])
+            start = self._warm.get(j)
+            if start is not None:
+                start = cr.RodState(start.x - start.x[:1] + root, start.q)
+            try:
+                state = cr.solve_static(self.section, self.segments, loads=loads, clamp=clamp, root_m=root, start=start, rtol=1e-8)
+            except cr.SolverError:
+                # the last answer is another branch or too far: from the straight rod, in increments
+                state = cr.solve_static(self.section, self.segments, loads=loads, clamp=clamp, root_m=root, increments=4, rtol=1e-8)
+            self._warm[j] = state
+            out[j] = (state, loads, u_r[j], th_r[j])
+        return out
+
+    # --- the interface of the contact loop --------------------------------------------------------------
+
+    def _answers(self, f: np.ndarray):
+        """Per loaded rod j: (j, state, root translation, root rotation, P-delta load on its points (k, 3) N,
+        the straight rod's linear dofs under its forces and that load)."""
+        for j, (state, loads, u_r, th_r) in self.solve_rods(f).items():
+            pts = self._points[j]
+            x_r = self.root_X[j] + u_r
+            moment = np.sum(np.cross(loads.positions(state) - x_r, f[pts]) - np.cross(self.X[pts] - self.root_X[j], f[pts]), axis=0)
+            # the horizontal load on the loaded points (weights |f_k|) whose root moment is the horizontal difference
+            w = np.linalg.norm(f[pts], axis=1)
+            w = w / w.sum()
+            lever = float(np.sum(w * (self.X[pts, 2] - self.root_X[j, 2])))
+            f_pd = np.zeros(3)
+            if lever > 0.0:
+                f_pd[:2] = -np.cross([0.0, 0.0, 1.0], [moment[0], moment[1], 0.0])[:2] / lever
+            load = w[:, None] * f_pd
+            d_lin = self._linear_dofs(cr.PointLoads(*self._attach[j], f[pts] + load))
+            yield j, state, u_r, th_r, load, d_lin
+
+    def _nonlinear_part(self, j: int, state: cr.RodState, u_r, th_r, d_lin, Y: np.ndarray) -> np.ndarray:
+        """Points Y (k, 3) m of rod j carried by the rod in ``state`` less the same rod linearised (q's rule)."""
+        sec = self.sections
+        segment, along, offset = attachments(Y, sec.centre[j, :2], sec.base_z_m, sec.length_m, self.segments)
+        placed = cr.PointLoads(segment, along, offset, np.zeros_like(Y)).positions(state)
+        linear = Y + u_r + np.cross(th_r, Y - self.root_X[j]) + self._linear_positions(d_lin, segment, along, offset)
+        return placed - linear
+
+    def q_and_load(self, f_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """q (m, 3) m and the P-delta load f_pd (m, 3) N at point forces f_points (m, 3) N."""
+        f = np.asarray(f_points, dtype=float)
+        q = np.zeros_like(f)
+        load = np.zeros_like(f)
+        for j, state, u_r, th_r, load_j, d_lin in self._answers(f):
+            pts = self._points[j]
+            load[pts] = load_j
+            q[pts] = self._nonlinear_part(j, state, u_r, th_r, d_lin, self.X[pts])
+        return q, load
+
+    def q(self, f: np.ndarray) -> np.ndarray:
+        return self.q_and_load(f)[0]
+
+    def vertex_correction(self, U: np.ndarray, points: np.ndarray, forces: np.ndarray | None = None) -> np.ndarray:
+        """The nonlinear part (P, 3) m of the rods' vertex displacements at point forces ``forces`` (m, 3) N
+        (U (P, 3), the linear displacement, only gives the shape): per loaded rod, each vertex carried by the
+        Cosserat rod as a point of it (its height's segment, its offset from the axis) less the same rod
+        linearised, q's rule at every vertex. Without forces: zero."""
+        out = np.zeros_like(np.asarray(U, dtype=float))
+        if forces is None:
+            return out
+        sec = self.sections
+        for j, state, u_r, th_r, _, d_lin in self._answers(np.asarray(forces, dtype=float)):
+            verts = sec.vertices[j]
+            verts = verts[points[verts, 2] >= sec.base_z_m - 1e-7]
+            out[verts] = self._nonlinear_part(j, state, u_r, th_r, d_lin, points[verts])
+        return out
