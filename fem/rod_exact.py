@@ -184,29 +184,42 @@ class CosseratKinematics:
         psi = blocks[segment, :3]
         return (1.0 - along)[:, None] * node[segment] + along[:, None] * node[segment + 1] + np.cross(psi, offset)
 
-    def solve_rods(self, f: np.ndarray, rods: np.ndarray | None = None) -> dict[int, tuple[cr.RodState, cr.PointLoads, np.ndarray, np.ndarray]]:
-        """Each loaded rod (or those of ``rods``) in equilibrium under its points' forces f (m, 3) N, clamped
-        where the body puts its root: {rod: (state, its loads, root translation, root rotation)}."""
+    def solve_rods(self, f: np.ndarray) -> dict[int, tuple[cr.RodState, cr.PointLoads, np.ndarray, np.ndarray]]:
+        """Each loaded rod in equilibrium under its points' forces f (m, 3) N, clamped where the body puts its
+        root, all in one batch (:func:`fem.cosserat_rod.solve_static`), each from its last answer:
+        {rod: (state, its loads, root translation, root rotation)}."""
         u_r, th_r = self.root_motion(f)
+        loaded = [j for j, pts in enumerate(self._points) if len(pts) and np.any(f[pts])]
+        if not loaded:
+            return {}
+        K = max(len(self._points[j]) for j in loaded)
+        B = len(loaded)
+        segment, along = np.zeros((B, K), dtype=int), np.zeros((B, K))
+        offset, force = np.zeros((B, K, 3)), np.zeros((B, K, 3))
+        for b, j in enumerate(loaded):
+            k = len(self._points[j])
+            segment[b, :k], along[b, :k], offset[b, :k] = self._attach[j]
+            force[b, :k] = f[self._points[j]]
+        roots = self.root_X[loaded] + u_r[loaded]
+        clamps = _rotation_quaternion(th_r[loaded])
+        straight = cr.straight_rod(self.section, self.segments, roots, clamps)
+        x, q = straight.x.copy(), straight.q.copy()
+        for b, j in enumerate(loaded):
+            warm = self._warm.get(j)
+            if warm is not None:  # the last answer, carried to today's root
+                x[b], q[b] = warm.x - warm.x[:1] + roots[b], warm.q
+        loads = cr.PointLoads(segment, along, offset, force)
+        try:
+            state = cr.solve_static(self.section, self.segments, loads=loads, clamp=clamps, root_m=roots, start=cr.RodState(x, q), rtol=1e-8)
+        except cr.SolverError:
+            # a last answer on another branch or too far: from the straight rods, in increments
+            state = cr.solve_static(self.section, self.segments, loads=loads, clamp=clamps, root_m=roots, start=straight, increments=4, rtol=1e-8)
         out = {}
-        for j in (range(len(self.sections.rods)) if rods is None else rods):
-            pts = self._points[j]
-            if len(pts) == 0 or not np.any(f[pts]):
-                continue
-            segment, along, offset = self._attach[j]
-            loads = cr.PointLoads(segment, along, offset, f[pts])
-            root = self.root_X[j] + u_r[j]
-            clamp = _rotation_quaternion(th_r[j])
-            start = self._warm.get(j)
-            if start is not None:
-                start = cr.RodState(start.x - start.x[:1] + root, start.q)
-            try:
-                state = cr.solve_static(self.section, self.segments, loads=loads, clamp=clamp, root_m=root, start=start, rtol=1e-8)
-            except cr.SolverError:
-                # the last answer is another branch or too far: from the straight rod, in increments
-                state = cr.solve_static(self.section, self.segments, loads=loads, clamp=clamp, root_m=root, increments=4, rtol=1e-8)
-            self._warm[j] = state
-            out[j] = (state, loads, u_r[j], th_r[j])
+        for b, j in enumerate(loaded):
+            k = len(self._points[j])
+            rod = cr.RodState(state.x[b], state.q[b])
+            self._warm[j] = rod
+            out[j] = (rod, cr.PointLoads(segment[b, :k], along[b, :k], offset[b, :k], force[b, :k]), u_r[j], th_r[j])
         return out
 
     # --- the interface of the contact loop --------------------------------------------------------------
