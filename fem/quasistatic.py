@@ -470,6 +470,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         return run_nonlinear_episode(scene, mesh, settings, progress=progress)
     if settings.tier not in ("linear", "reduced"):
         raise ValueError(f'fidelity.solve.tier = "{settings.tier}": choose "reduced", "linear" or "nonlinear"')
+    if settings.rod_kinematics in ("second_order", "cosserat") and settings.contact_solver != "admm":
+        raise ValueError(f'fidelity.solve.rod_kinematics = "{settings.rod_kinematics}" needs fidelity.solve.contact_solver = "admm"')
     timings: dict = {}
     lame, rho, e_contact = layer_materials(scene)
     if settings.tier == "reduced" and reduced is None:
@@ -486,8 +488,6 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         raise ValueError(f'fidelity.solve.rod_kinematics = "{settings.rod_kinematics}": choose one of {", ".join(rod_kinematics.ROD_KINEMATICS)}')
     second_order = settings.rod_kinematics in ("second_order", "cosserat")
     exact = settings.rod_kinematics == "cosserat"
-    if second_order and settings.contact_solver != "admm":
-        raise ValueError(f'fidelity.solve.rod_kinematics = "{settings.rod_kinematics}" needs fidelity.solve.contact_solver = "admm"')
     kinematics = None
     if settings.tier == "reduced":
         # contact at every point near the path, rod by rod: each rod's points with their own compliance,
