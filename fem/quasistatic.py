@@ -719,6 +719,23 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         total = forces.sum(axis=1)
     if kinematics is not None:
         disp = disp + np.stack([kinematics.vertex_correction(disp[i], mesh.points, forces=forces[first[i]]) for i in range(U)])
+    if exact and m > 0:
+        # the bent rods' section resultants in their own frames (fem.rod_exact: Saint-Venant's recovery through
+        # each loaded rod's responses to unit tip loads, made by this tier's own field recovery)
+        unit, unit_rods = kinematics.unit_tip_loads(area)
+        if len(unit_rods):
+            J = len(unit_rods)
+            flat = unit.reshape(J * 6, m, 3)
+            if settings.tier == "reduced":
+                with _blas_threads().limit(limits=1, user_api="blas"):
+                    s_unit, _ = reduced_fields_of(reduced, keep, rod, np.concatenate([flat, np.zeros((1, m, 3))]))
+                s_unit = s_unit.T.reshape(J * 6 + 1, 6, T)
+                s_unit = s_unit[:-1] - s_unit[-1:]  # less the weight's field
+            else:
+                s_unit = body.stress(body.solve(points.W @ flat.reshape(J * 6, 3 * m).T))
+            s_unit = s_unit.reshape(J, 6, 6, T)
+            tet_z = mesh.points[mesh.tets][:, :, 2].mean(axis=1)
+            stress = stress + np.stack([kinematics.stress_correction(forces[first[i]], s_unit, unit_rods, tet_z, mesh.tet_rod) for i in range(U)])
     timings["fields"] = time.perf_counter() - t0
     # each step's share of the field recovery: the distinct loads share it, a repeat is a copy
     timings["fields_step_ms"] = np.where(np.isin(np.arange(S), first), 1e3 * timings["fields"] / U, 0.0).tolist()

@@ -278,3 +278,78 @@ class CosseratKinematics:
             verts = verts[points[verts, 2] >= sec.base_z_m - 1e-7]
             out[verts] = self._nonlinear_part(j, state, u_r, th_r, d_lin, points[verts])
         return out
+
+    # --- the stresses: Saint-Venant's recovery of the bent rod's section resultants ------------------------
+
+    def unit_tip_loads(self, area_m2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Point loads (J, 6, m, 3) N of the rods J (mesh-rod indices into sections.rods, those with tip-face
+        points): per rod, a unit force along x, y, z and a unit moment about x, y, z at its tip centre, spread
+        over its tip-face points by area (the moments as linear tractions: about x and y by vertical forces
+        in proportion to the lever, about z by forces along the circle)."""
+        tip_z = self.sections.base_z_m + self.sections.length_m
+        rods, out = [], []
+        for j, pts in enumerate(self._points):
+            face = pts[self.X[pts, 2] >= tip_z - 1e-7]
+            if len(face) < 3:
+                continue
+            a = area_m2[face]
+            r = self.X[face, :2] - self.sections.centre[j, :2]
+            loads = np.zeros((6, len(self.X), 3))
+            for c in range(3):
+                loads[c, face, c] = a / a.sum()
+            # M_x = sum y f_z, M_y = -sum x f_z, M_z = sum (x f_y - y f_x)
+            loads[3, face, 2] = a * r[:, 1] / np.sum(a * r[:, 1] ** 2)
+            loads[4, face, 2] = -a * r[:, 0] / np.sum(a * r[:, 0] ** 2)
+            J = np.sum(a * (r**2).sum(axis=1))
+            loads[5, face, 0] = -a * r[:, 1] / J
+            loads[5, face, 1] = a * r[:, 0] / J
+            rods.append(j)
+            out.append(loads)
+        return (np.array(out) if out else np.zeros((0, 6, len(self.X), 3))), np.array(rods, dtype=int)
+
+    def stress_correction(self, f: np.ndarray, unit_stress: np.ndarray, rods: np.ndarray, tet_z: np.ndarray, tet_rod: np.ndarray) -> np.ndarray:
+        """The stress (6, T) Pa to add to the linear body's under f + f_pd (f (m, 3) N the contact forces):
+        in each loaded rod's tets, Saint-Venant's recovery of the difference between the bent rod's section
+        resultants (in the section's own frame) and those the linear body carries, through the rod's own
+        responses to unit tip loads, ``unit_stress`` (J, 6, 6, T) of the rods ``rods`` (J,) (from
+        :meth:`unit_tip_loads`). tet_z (T,) m the tets' centroid heights, tet_rod (T,) their mesh rods.
+
+        A tet at height z sees the resultant (F, M) of the loads above it. The unit tip load k gives there
+        the resultant T(z) e_k, T = [[I, 0], [(z_tip - z) [e_z]x, I]], so the section's response to a
+        resultant r is unit_stress T(z)^-1 r. Exact for a prismatic rod away from the loads (Saint-Venant's
+        principle); near the tip face the loads' local stress is the linear body's, and the resultants'
+        difference, with short levers, small."""
+        out = np.zeros(unit_stress.shape[2:])
+        if not len(rods):
+            return out
+        answers = {j: (state, load, u_r) for j, state, u_r, _, load, _ in self._answers(np.asarray(f, dtype=float))}
+        sec = self.sections
+        tip_z = sec.base_z_m + sec.length_m
+        l = sec.length_m / self.segments
+        for i, j in enumerate(rods):
+            if j not in answers:
+                continue
+            state, load, _ = answers[j]
+            pts = self._points[j]
+            on = np.flatnonzero((tet_rod == sec.rods[j]) & (tet_z >= sec.base_z_m))
+            z = tet_z[on]
+            h = np.clip(z - sec.base_z_m, 0.0, sec.length_m)
+            e = np.minimum((h / l).astype(int), self.segments - 1)
+            s = (h / l - e)[:, None]
+            centre = (1.0 - s) * state.x[e] + s * state.x[e + 1]  # the axis at each tet's height
+            R = cr.rotation_matrix(state.q[e])  # (n, 3, 3) the sections' frames
+            p = cr.PointLoads(*self._attach[j], np.zeros((len(pts), 3))).positions(state)
+            above = self.X[pts, 2][None, :] > z[:, None]  # (n, k)
+            fk = np.asarray(f, dtype=float)[pts]
+            F_ex = above @ fk
+            M_ex = np.einsum("nk,nkc->nc", above, np.cross(p[None, :, :] - centre[:, None, :], fk[None]))
+            r_ex = np.concatenate([np.einsum("nji,nj->ni", R, F_ex), np.einsum("nji,nj->ni", R, M_ex)], axis=1)
+            g = fk + load
+            axis = np.column_stack([np.broadcast_to(sec.centre[j, :2], (len(z), 2)), z])
+            F_lin = above @ g
+            M_lin = np.einsum("nk,nkc->nc", above, np.cross(self.X[pts][None, :, :] - axis[:, None, :], g[None]))
+            dM = r_ex[:, 3:] - M_lin
+            dF = r_ex[:, :3] - F_lin
+            coeff = np.concatenate([dF, dM - (tip_z - z)[:, None] * np.cross([0.0, 0.0, 1.0], dF)], axis=1)  # T(z)^-1 dr
+            out[:, on] += np.einsum("ksn,nk->sn", unit_stress[i][:, :, on], coeff)
+        return out

@@ -2,14 +2,16 @@
 
 Runs the scene's load for every combination of mesh edge length x element order x tier (the
 ``nonlinear`` tier is P2P1 only), each through the pipeline (so meshes and episodes are cached and
-a rerun costs nothing), and measures three errors against a reference (by default the finest
+a rerun costs nothing), and measures four errors against a reference (by default the finest
 mesh, element order 2, ``nonlinear`` tier), over all frames and rods:
 
 - ``rod_base_von_mises``: per rod, the volume-weighted mean von Mises stress over the rod's tets
   whose centroids lie within ``base_band_mm`` above the base (where a bent rod's stress peaks,
   SPEC 1.3) - a mesh-independent measure, unlike the peak of one tet;
 - ``rod_contact_force``: the contact force on each rod (3 components);
-- ``tip_displacement``: the mean displacement of each rod's tip vertices.
+- ``tip_displacement``: the mean displacement of each rod's tip vertices;
+- ``rod_photons``: the photons per second each rod's ML layer emits in each frame (the scene's
+  emission stage on the episode): the light the camera sees, the product's output.
 
 Each error is the relative Frobenius norm |a - a_ref| / |a_ref| over frames x rods (x components).
 Run time is the per-frame cost of the solve (contact steps and field recovery over frames); the
@@ -29,14 +31,15 @@ import numpy as np
 
 __all__ = ["ERRORS", "rod_measures", "relative_error", "pareto_front", "solve_accuracy"]
 
-ERRORS = ("rod_base_von_mises", "rod_contact_force", "tip_displacement")
+ERRORS = ("rod_base_von_mises", "rod_contact_force", "tip_displacement", "rod_photons")
 
 
-def rod_measures(ep, base_top_m: float, base_band_m: float = 1.0e-3) -> dict[str, np.ndarray]:
+def rod_measures(ep, base_top_m: float, base_band_m: float = 1.0e-3, emission=None) -> dict[str, np.ndarray]:
     """Mesh-independent per-rod measures of an episode at its frames.
 
-    Returns ``rod_base_von_mises`` (F, R) Pa, ``rod_contact_force`` (F, R, 3) N and
-    ``tip_displacement`` (F, R, 3) m.
+    Returns ``rod_base_von_mises`` (F, R) Pa, ``rod_contact_force`` (F, R, 3) N,
+    ``tip_displacement`` (F, R, 3) m and, given the episode's ``emission``
+    (:class:`mlsim.emission.EmissionResult`), ``rod_photons`` (F, R) photons/s.
     """
     P, tets = ep.mesh_points, ep.mesh_tets
     R = ep.rod_force_n.shape[1]
@@ -58,7 +61,10 @@ def rod_measures(ep, base_top_m: float, base_band_m: float = 1.0e-3) -> dict[str
         verts = np.unique(tets[on])
         top = verts[P[verts, 2] >= P[verts, 2].max() - 1e-9]
         tip_u[:, r] = disp[:, top].mean(axis=1)
-    return {"rod_base_von_mises": base_vm, "rod_contact_force": ep.frames("rod_force_n"), "tip_displacement": tip_u}
+    out = {"rod_base_von_mises": base_vm, "rod_contact_force": ep.frames("rod_force_n"), "tip_displacement": tip_u}
+    if emission is not None:
+        out["rod_photons"] = emission.per_rod(R)[:, :R]
+    return out
 
 
 def relative_error(a: np.ndarray, ref: np.ndarray) -> float:
@@ -121,13 +127,13 @@ def solve_accuracy(scene, edges_mm, orders=(1, 2), tiers=("reduced", "linear", "
 
     def episode_of(edge, order, tier):
         sc = scene.with_values({"fidelity.mesh.edge_length_mm": edge, "fidelity.solve.element_order": order,
-                                "fidelity.solve.tier": tier, "outputs": ["solve"]})
+                                "fidelity.solve.tier": tier, "outputs": ["solve", "emission"]})
         log(f"[accuracy] edge {edge:g} mm, order {order}, {tier}")
         res = pipeline.run(sc, out_dir=None, cache=cache, progress=progress, log=lambda m: None)
-        return res.results["solve"], res.results.get("mesh")
+        return res.results["solve"], res.results["emission"]
 
-    ref_ep, _ = episode_of(float(ref_key[0]), int(ref_key[1]), str(ref_key[2]))
-    ref = rod_measures(ref_ep, base_top)
+    ref_ep, ref_emission = episode_of(float(ref_key[0]), int(ref_key[1]), str(ref_key[2]))
+    ref = rod_measures(ref_ep, base_top, emission=ref_emission)
     rows: list[Row] = []
     keys = list(_configs(edges_mm, orders, tiers))
     if (float(ref_key[0]), int(ref_key[1]), str(ref_key[2])) not in keys:
@@ -135,13 +141,13 @@ def solve_accuracy(scene, edges_mm, orders=(1, 2), tiers=("reduced", "linear", "
     for edge, order, tier in keys:
         row = Row(edge, order, tier, reference=(edge, order, tier) == (float(ref_key[0]), int(ref_key[1]), str(ref_key[2])))
         try:
-            ep, _ = episode_of(edge, order, tier)
+            ep, emission = episode_of(edge, order, tier)
         except SolverError as exc:
             row.failed = str(exc)
             rows.append(row)
             log(f"[accuracy] edge {edge:g} mm, order {order}, {tier}: failed: {exc}")
             continue
-        meas = rod_measures(ep, base_top)
+        meas = rod_measures(ep, base_top, emission=emission)
         row.element, row.n_tets, row.n_frames = ep.element, int(len(ep.mesh_tets)), ep.n_frames
         row.per_frame_ms = float(ep.seconds.get("per_frame_ms", np.nan))
         row.precompute_s = float(sum(v for k, v in ep.seconds.items() if k == "precompute" or k.startswith("body_")))
