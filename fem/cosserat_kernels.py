@@ -10,11 +10,13 @@ is one loop over its segments, joints and point loads:
 * :func:`block_cholesky` / :func:`block_solve` -- H = L L^T with L block-bidiagonal (6 x 6 blocks),
   flagging a Hessian that is not positive definite;
 * :func:`update` -- :func:`fem.cosserat_rod._update` (frames turned by the Cayley map, chords rebuilt);
-* :func:`newton_batch` -- :func:`fem.cosserat_rod._newton` for each rod while it stays in its common
-  case: Hessian positive definite, Newton step inside the trust radius and accepted by the trust
-  region's test (conservative loads), or Newton's step with the same turn limit and backtracking
-  (with a dead tip moment). A rod that leaves it is returned flagged, at its last accepted state, for
-  the numpy trust region (:func:`newton`): a column past its buckling load, still straight.
+* :func:`newton_batch` -- :func:`fem.cosserat_rod._newton` for each rod while its Hessian is positive
+  definite: under conservative loads the trust region on the energy, its step Newton's where that is
+  inside the radius, else the step on the boundary (More and Sorensen's iteration on block Cholesky
+  factors, where numpy bisects over H's eigenvalues: the same step to ~1e-12); with a dead tip moment,
+  Newton's step with the same turn limit and backtracking on the imbalance. A rod whose Hessian is not
+  positive definite (a column past its buckling load, still straight) is returned flagged, at its
+  last accepted state, for the numpy trust region (:func:`newton`).
 
 Verified in tests/test_cosserat_kernels.py against the numpy functions to round-off, and the whole
 solve (``fem.cosserat_rod.solve_static(compiled=True)``, the default) against the numpy path.
@@ -27,6 +29,7 @@ import math
 
 import numpy as np
 from numba import njit
+from threadpoolctl import threadpool_limits
 
 CONVERGED, FALLBACK = 0, 1
 
@@ -74,15 +77,14 @@ def _add_jtwj(J, w, scale, out, r0, c0):
 # --- energy, gradient and Hessian of one rod --------------------------------------------------------
 
 @njit(cache=True)
-def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, hessian, g, D, O):
-    """One rod: fills g (N, 6) and, if ``hessian``, D and O (N, 6, 6) (overwritten); returns (energy (J),
+def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, g, D, O):
+    """One rod: fills g (N, 6), D and O (N, 6, 6) (overwritten); returns (energy (J),
     the loads' work's size |F . (x_N - x_0)| + |sum_k f_k . (p_k - x_0)| (J): the trust region's
     round-off scale). Arithmetic as fem.cosserat_rod.gradient_and_hessian and energy."""
     n = q.shape[0]
     g[:] = 0.0
-    if hessian:
-        D[:] = 0.0
-        O[:] = 0.0
+    D[:] = 0.0
+    O[:] = 0.0
     R = np.empty((3, 3))
     Rp = np.empty((3, 3))
     Jx = np.empty((3, 3))
@@ -117,8 +119,6 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, hessia
         g[e, 0] += -l * (b[1] * nm[2] - b[2] * nm[1])
         g[e, 1] += -l * (b[2] * nm[0] - b[0] * nm[2])
         g[e, 2] += -l * (b[0] * nm[1] - b[1] * nm[0])
-        if not hessian:
-            continue
         for i in range(3):
             for j in range(3):
                 Jx[i, j] = R[j, i] / l
@@ -178,8 +178,6 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, hessia
             g[i - 1, 0] += -pw * m[0] - c0
             g[i - 1, 1] += -pw * m[1] - c1
             g[i - 1, 2] += -pw * m[2] - c2
-        if not hessian:
-            continue
         _skew(pv, sk)
         for r in range(3):
             for c in range(3):
@@ -228,32 +226,32 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, hessia
         g[e, 0] -= r1 * fb[2] - r2 * fb[1]
         g[e, 1] -= r2 * fb[0] - r0 * fb[2]
         g[e, 2] -= r0 * fb[1] - r1 * fb[0]
-        if hessian:  # the load stiffness of a dead force on a turning offset
-            rf = r0 * fb[0] + r1 * fb[1] + r2 * fb[2]
-            rv = (r0, r1, r2)
-            for r in range(3):
-                for c in range(3):
-                    D[e, r, c] += -0.5 * (rv[r] * fb[c] + fb[r] * rv[c]) + (rf if r == c else 0.0)
+        # the load stiffness of a dead force on a turning offset
+        rf = r0 * fb[0] + r1 * fb[1] + r2 * fb[2]
+        rv = (r0, r1, r2)
+        for r in range(3):
+            for c in range(3):
+                D[e, r, c] += -0.5 * (rv[r] * fb[c] + fb[r] * rv[c]) + (rf if r == c else 0.0)
     return stored - work_tip - work_pts, abs(work_tip) + abs(work_pts)
 
 
 @njit(cache=True)
-def evaluate(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, hessian=True):
+def evaluate(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force):
     """The energy E (B,) J, gradient g (B, 6N) and Hessian blocks D, O (B, N, 6, 6) of a batch of B rods
     (fem.cosserat_rod.energy and gradient_and_hessian, block convention in the module docstring).
 
     x (B, N + 1, 3) m, q (B, N, 4), clamp (B, 4) unit quaternions; length m; S (3,) N, Bk (3,) N m^2
     (RodSection.S, .B); F (B, 3) N, M (B, 3) N m the dead tip force and moment; point loads seg (B, K)
-    int, along (B, K), offset (B, K, 3) m, force (B, K, 3) N (K = 0 for none; pad with zero forces).
-    Without ``hessian`` D and O are zeros."""
+    int, along (B, K), offset (B, K, 3) m, force (B, K, 3) N (K = 0 for none; pad with zero forces), as
+    :func:`flatten_problem` makes them."""
     nb, n = q.shape[0], q.shape[1]
     l = length / n
     E = np.empty(nb)
     g = np.empty((nb, n, 6))
-    D = np.zeros((nb, n, 6, 6))
-    O = np.zeros((nb, n, 6, 6))
+    D = np.empty((nb, n, 6, 6))
+    O = np.empty((nb, n, 6, 6))
     for r in range(nb):
-        E[r], _ = _evaluate_rod(x[r], q[r], clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], hessian, g[r], D[r], O[r])
+        E[r], _ = _evaluate_rod(x[r], q[r], clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], g[r], D[r], O[r])
     return E, g.reshape(nb, 6 * n), D, O
 
 
@@ -302,11 +300,9 @@ def _cholesky_rod(D, O, L, C):
 
 
 @njit(cache=True)
-def _solve_rod(L, C, rhs, out):
-    """out = (L L^T)^-1 rhs for one rod (rhs, out (N, 6); may be the same array)."""
-    n = L.shape[0]
-    y = np.empty((n, 6))
-    for e in range(n):
+def _forward_rod(L, C, rhs, y):
+    """y = L^-1 rhs for one rod's factor (rhs, y (N, 6))."""
+    for e in range(L.shape[0]):
         for i in range(6):
             acc = rhs[e, i]
             if e >= 1:
@@ -315,6 +311,14 @@ def _solve_rod(L, C, rhs, out):
             for k in range(i):
                 acc -= L[e, i, k] * y[e, k]
             y[e, i] = acc / L[e, i, i]
+
+
+@njit(cache=True)
+def _solve_rod(L, C, rhs, out):
+    """out = (L L^T)^-1 rhs for one rod (rhs, out (N, 6); may be the same array)."""
+    n = L.shape[0]
+    y = np.empty((n, 6))
+    _forward_rod(L, C, rhs, y)
     for e in range(n - 1, -1, -1):
         for i in range(5, -1, -1):
             acc = y[e, i]
@@ -349,6 +353,54 @@ def block_solve(L, C, rhs):
     for r in range(nb):
         _solve_rod(L[r], C[r], r6[r], out[r])
     return out.reshape(nb, 6 * n)
+
+
+@njit(cache=True)
+def _boundary_step(D, O, g, l, radius, L, C, step):
+    """The trust region's step on its boundary for a positive definite H whose Newton step (in ``step``,
+    its factor in L, C) leaves it: p = -(H + mu diag(w))^-1 g with |p| = radius in the region's norm
+    |p|^2 = p.diag(w).p, w = 1 for turns and 1 / l^2 for node moves (fem.cosserat_rod._trust_region_step's
+    scaling), mu > 0 found by More and Sorensen's Newton iteration on 1 / |p(mu)| = 1 / radius
+    ([NocedalWright2006] Algorithm 4.3; from mu = 0 it rises to the root without overshooting, every
+    H + mu diag(w) positive definite). numpy finds the same mu by bisection over H's eigenvalues.
+    Overwrites L, C, step; returns (converged, mu)."""
+    n = D.shape[0]
+    A = D.copy()
+    wp = np.empty((n, 6))
+    y = np.empty((n, 6))
+    mu = 0.0
+    dmu = 1.0
+    inv_l2 = 1.0 / (l * l)
+    for _ in range(60):
+        pn2 = 0.0
+        for e in range(n):
+            for c in range(6):
+                w = 1.0 if c < 3 else inv_l2
+                wp[e, c] = w * step[e, c]
+                pn2 += w * step[e, c] * step[e, c]
+        pn = math.sqrt(pn2)
+        # |p| carries H's round-off (cond(H) ~ 1e7 in the region's norm: ~1e-9 of |p|): the step is on the
+        # boundary to 1e-9, or mu settled at its round-off
+        if abs(pn - radius) <= 1e-9 * radius or abs(dmu) <= 1e-14 * mu:
+            return True, mu
+        # |q|^2 = p.W L^-T L^-1 W p = |p|'s derivative's ingredient: d|p|/dmu = -|q|^2 / |p|
+        _forward_rod(L, C, wp, y)
+        qn2 = 0.0
+        for e in range(n):
+            for c in range(6):
+                qn2 += y[e, c] * y[e, c]
+        dmu = pn2 / qn2 * (pn - radius) / radius
+        mu += dmu
+        for e in range(n):
+            for c in range(6):
+                A[e, c, c] = D[e, c, c] + mu * (1.0 if c < 3 else inv_l2)
+        if not _cholesky_rod(A, O, L, C):
+            return False, mu
+        _solve_rod(L, C, g, step)
+        for e in range(n):
+            for c in range(6):
+                step[e, c] = -step[e, c]
+    return False, mu
 
 
 # --- the update and Newton's loop -------------------------------------------------------------------
@@ -422,8 +474,8 @@ def _imbalance_rod(g, tol_f, tol_m):
 def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, tol_f, tol_m, max_iterations, conservative,
                  max_turn):
     """fem.cosserat_rod._newton on each rod of a batch (arguments as :func:`evaluate`; tol_f (B,) N and
-    tol_m (B,) N m its tolerances; max_turn rad, MAX_TURN_RAD) for as long as the rod stays in the common
-    case (the module docstring). Overwrites x and q with the rods' last accepted states; returns status (B,)
+    tol_m (B,) N m its tolerances; max_turn rad, MAX_TURN_RAD) for as long as the rod's Hessian is positive
+    definite (the module docstring). Overwrites x and q with the rods' last accepted states; returns status (B,)
     (CONVERGED, or FALLBACK: the numpy trust region is to go on from there) and the Newton iterations
     taken (B,)."""
     nb, n = q.shape[0], q.shape[1]
@@ -444,7 +496,7 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
     for r in range(nb):
         xr, qr = x[r], q[r]
         radius = max_turn
-        E, work = _evaluate_rod(xr, qr, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], True, g, D, O)
+        E, work = _evaluate_rod(xr, qr, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], g, D, O)
         status[r] = FALLBACK
         for it in range(max_iterations + 1):
             if it == max_iterations:  # out of iterations: numpy's loop raises (or, after a fallback, retries)
@@ -461,9 +513,9 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
                     step[e, c] = -step[e, c]
             iterations[r] = it + 1
             if conservative:
-                # the trust region's test ([NocedalWright2006] ch. 4, as fem.cosserat_rod._newton): the step in
-                # its norm (turns in rad, node moves in segment lengths) within the radius, the energy's
-                # actual decrease against the model's, -g.p - p.H.p / 2 = -g.p / 2 at Newton's step
+                # the trust region ([NocedalWright2006] ch. 4, as fem.cosserat_rod._newton): the step in its
+                # norm (turns in rad, node moves in segment lengths) within the radius, the energy's actual
+                # decrease against the model's, -g.p - p.H.p / 2 = -g.p / 2 at Newton's step
                 norm2 = 0.0
                 gp = 0.0
                 for e in range(n):
@@ -472,11 +524,20 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
                         norm2 += sc * sc
                         gp += g[e, c] * step[e, c]
                 norm = math.sqrt(norm2)
-                if norm > radius:
-                    break
                 predicted = -0.5 * gp
+                if norm > radius:
+                    found, mu = _boundary_step(D, O, g, l, radius, L, C, step)
+                    if not found:
+                        break
+                    # the model's decrease -g.p - p.H.p / 2 with H p = -g - mu W p, |p|^2 = p.W.p = radius^2
+                    gp = 0.0
+                    for e in range(n):
+                        for c in range(6):
+                            gp += g[e, c] * step[e, c]
+                    norm = radius
+                    predicted = -0.5 * gp + 0.5 * mu * radius * radius
                 _update_rod(xr, qr, step, 1.0, xt, qt)
-                Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], True, gt, Dt, Ot)
+                Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], gt, Dt, Ot)
                 actual = E - Et
                 ratio = actual / predicted if predicted > 0.0 else 0.0
                 if ratio < 0.25:
@@ -485,7 +546,10 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
                     radius = min(2.0 * radius, 16.0 * max_turn)
                 noise = 1e-12 * (abs(E) + work)
                 if not (ratio > 1e-4 or (actual >= -noise and _imbalance_rod(gt, tol_f[r], tol_m[r]) < i0)):
-                    break  # numpy would shrink the radius until the step leaves it: its trust region's case
+                    # rejected: the state stays, the radius shrank (above); numpy's loop does the same
+                    if radius < 1e-12:
+                        break
+                    continue
             else:
                 # Newton's step, its largest turn limited to max_turn, backtracking on the imbalance
                 turn = 0.0
@@ -500,7 +564,7 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
                 _update_rod(xr, qr, step, t, xt, qt)
                 evaluated = False
                 for _ in range(20):
-                    Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], True, gt, Dt, Ot)
+                    Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], gt, Dt, Ot)
                     evaluated = True
                     if _imbalance_rod(gt, tol_f[r], tol_m[r]) < i0:
                         break
@@ -508,7 +572,7 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
                     _update_rod(xr, qr, step, t, xt, qt)
                     evaluated = False
                 if not evaluated:
-                    Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], True, gt, Dt, Ot)
+                    Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], gt, Dt, Ot)
             # accept the trial: it and its derivatives become the state's
             xr[:] = xt
             qr[:] = qt
@@ -519,25 +583,24 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
     return status, iterations
 
 
+def _owned(a, shape, dtype=float):
+    """a broadcast to shape, as a writable C-ordered copy: one array type per argument, so numba compiles
+    each kernel once (a read-only view, as np.broadcast_to makes, is another type: another compile)."""
+    return np.array(np.broadcast_to(a, shape), dtype=dtype, order="C")
+
+
 def flatten_problem(state, section, clamp, F, M, loads, lead):
-    """The batch as :func:`newton_batch` takes it: every array broadcast to ``lead`` and flattened to B rods
-    (contiguous copies: the kernels overwrite x and q)."""
+    """The batch as :func:`newton_batch` and :func:`evaluate` take it: (x, q, clamp, F, M, seg, along, offset,
+    force), every array broadcast to ``lead`` and flattened to B rods (copies: the kernels overwrite x, q)."""
     nrods = int(np.prod(lead, dtype=np.int64))
     n = state.q.shape[-2]
-    x = np.ascontiguousarray(np.broadcast_to(state.x, lead + (n + 1, 3)), dtype=float).reshape(nrods, n + 1, 3).copy()
-    q = np.ascontiguousarray(np.broadcast_to(state.q, lead + (n, 4)), dtype=float).reshape(nrods, n, 4).copy()
-    clamp = np.ascontiguousarray(np.broadcast_to(clamp, lead + (4,)), dtype=float).reshape(nrods, 4)
-    F = np.ascontiguousarray(np.broadcast_to(F, lead + (3,)), dtype=float).reshape(nrods, 3)
-    M = np.ascontiguousarray(np.broadcast_to(M, lead + (3,)), dtype=float).reshape(nrods, 3)
+    k = 0 if loads is None else np.shape(loads.force_n)[-2]
+    flat = (_owned(state.x, lead + (n + 1, 3)).reshape(nrods, n + 1, 3), _owned(state.q, lead + (n, 4)).reshape(nrods, n, 4),
+            _owned(clamp, lead + (4,)).reshape(nrods, 4), _owned(F, lead + (3,)).reshape(nrods, 3), _owned(M, lead + (3,)).reshape(nrods, 3))
     if loads is None:
-        seg, along, offset, force = np.zeros((nrods, 0), np.int64), np.zeros((nrods, 0)), np.zeros((nrods, 0, 3)), np.zeros((nrods, 0, 3))
-    else:
-        k = np.shape(loads.force_n)[-2]
-        seg = np.ascontiguousarray(np.broadcast_to(loads.segment, lead + (k,)), dtype=np.int64).reshape(nrods, k)
-        along = np.ascontiguousarray(np.broadcast_to(loads.along, lead + (k,)), dtype=float).reshape(nrods, k)
-        offset = np.ascontiguousarray(np.broadcast_to(loads.offset_m, lead + (k, 3)), dtype=float).reshape(nrods, k, 3)
-        force = np.ascontiguousarray(np.broadcast_to(loads.force_n, lead + (k, 3)), dtype=float).reshape(nrods, k, 3)
-    return x, q, clamp, F, M, seg, along, offset, force
+        return flat + (np.zeros((nrods, 0), np.int64), np.zeros((nrods, 0)), np.zeros((nrods, 0, 3)), np.zeros((nrods, 0, 3)))
+    return flat + (_owned(loads.segment, lead + (k,), np.int64).reshape(nrods, k), _owned(loads.along, lead + (k,)).reshape(nrods, k),
+                   _owned(loads.offset_m, lead + (k, 3)).reshape(nrods, k, 3), _owned(loads.force_n, lead + (k, 3)).reshape(nrods, k, 3))
 
 
 def newton(state, section, clamp, F, M, tolerances, max_iterations: int, where: str, loads=None):
@@ -551,14 +614,14 @@ def newton(state, section, clamp, F, M, tolerances, max_iterations: int, where: 
     n = state.q.shape[-2]
     x, q, clamp_f, F_f, M_f, seg, along, offset, force = flatten_problem(state, section, clamp, F, M, loads, lead)
     nrods = x.shape[0]
-    tol_f = np.ascontiguousarray(np.broadcast_to(tolerances[0], lead), dtype=float).reshape(nrods)
-    tol_m = np.ascontiguousarray(np.broadcast_to(tolerances[1], lead), dtype=float).reshape(nrods)
+    tol_f, tol_m = _owned(tolerances[0], lead).reshape(nrods), _owned(tolerances[1], lead).reshape(nrods)
     status, _ = newton_batch(x, q, clamp_f, float(section.length_m), section.S, section.B, F_f, M_f, seg, along, offset, force,
                              tol_f, tol_m, int(max_iterations), not np.any(M_f), cr.MAX_TURN_RAD)
     rest = np.flatnonzero(status != CONVERGED)
     if rest.size:
         part = None if loads is None else cr.PointLoads(seg[rest], along[rest], offset[rest], force[rest])
-        done = cr._newton(cr.RodState(x[rest], q[rest]), section, clamp_f[rest], F_f[rest], M_f[rest], (tol_f[rest], tol_m[rest]),
-                          max_iterations, where, part)
+        with threadpool_limits(1, user_api="blas"):  # small matrices: BLAS threads only fight each other
+            done = cr._newton(cr.RodState(x[rest], q[rest]), section, clamp_f[rest], F_f[rest], M_f[rest], (tol_f[rest], tol_m[rest]),
+                              max_iterations, where, part)
         x[rest], q[rest] = done.x, done.q
     return cr.RodState(x.reshape(lead + (n + 1, 3)), q.reshape(lead + (n, 4)))

@@ -54,6 +54,7 @@ References
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -383,12 +384,13 @@ def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0)
     force_tol = np.maximum(rtol * load, 100.0 * eps * section.S.max())
     l = section.length_m / state.q.shape[-2]
     tolerances = (force_tol, np.maximum(force_tol * l, 100.0 * eps * section.B.max() / l))
-    # the matrices are small (6 N): BLAS threads only fight each other (60x slower on a loaded 2-core machine)
+    # the matrices are small (6 N): BLAS threads only fight each other (60x slower on a loaded 2-core machine);
+    # the compiled path calls no BLAS but in its numpy fallback, which sets the limit itself (0.6 ms a call)
     if compiled:
         from fem.cosserat_kernels import newton
     else:
         newton = _newton
-    with threadpool_limits(1, user_api="blas"):
+    with contextlib.nullcontext() if compiled else threadpool_limits(1, user_api="blas"):
         for k in range(1, increments + 1):
             part = None if loads is None else PointLoads(loads.segment, loads.along, loads.offset_m, loads.force_n * (k / increments))
             state = newton(state, section, clamp, F * k / increments, M * k / increments, tolerances, max_iterations,
