@@ -512,6 +512,8 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
                 for c in range(6):
                     step[e, c] = -step[e, c]
             iterations[r] = it + 1
+            norm = 0.0
+            predicted = 0.0
             if conservative:
                 # the trust region ([NocedalWright2006] ch. 4, as fem.cosserat_rod._newton): the step in its
                 # norm (turns in rad, node moves in segment lengths) within the radius, the energy's actual
@@ -536,8 +538,27 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
                             gp += g[e, c] * step[e, c]
                     norm = radius
                     predicted = -0.5 * gp + 0.5 * mu * radius * radius
-                _update_rod(xr, qr, step, 1.0, xt, qt)
+            else:
+                # Newton's step, its largest turn limited to max_turn, backtracking on the imbalance (below)
+                turn = 0.0
+                for e in range(n):
+                    for c in range(3):
+                        turn = max(turn, abs(step[e, c]))
+                cut = min(1.0, max_turn / max(turn, 1e-300))
+                for e in range(n):
+                    for c in range(6):
+                        step[e, c] *= cut
+            # the trial: the whole step, or with a dead moment numpy's backtracking (up to 20 halvings, the
+            # last taken unchecked). One call site each for the update and the evaluation: numba's compile
+            # time grows with the copies LLVM inlines
+            t = 1.0
+            for halving in range(21):
+                _update_rod(xr, qr, step, t, xt, qt)
                 Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], gt, Dt, Ot)
+                if conservative or halving == 20 or _imbalance_rod(gt, tol_f[r], tol_m[r]) < i0:
+                    break
+                t = 0.5 * t
+            if conservative:
                 actual = E - Et
                 ratio = actual / predicted if predicted > 0.0 else 0.0
                 if ratio < 0.25:
@@ -550,29 +571,6 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
                     if radius < 1e-12:
                         break
                     continue
-            else:
-                # Newton's step, its largest turn limited to max_turn, backtracking on the imbalance
-                turn = 0.0
-                for e in range(n):
-                    for c in range(3):
-                        turn = max(turn, abs(step[e, c]))
-                cut = min(1.0, max_turn / max(turn, 1e-300))
-                for e in range(n):
-                    for c in range(6):
-                        step[e, c] *= cut
-                t = 1.0
-                _update_rod(xr, qr, step, t, xt, qt)
-                evaluated = False
-                for _ in range(20):
-                    Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], gt, Dt, Ot)
-                    evaluated = True
-                    if _imbalance_rod(gt, tol_f[r], tol_m[r]) < i0:
-                        break
-                    t = 0.5 * t
-                    _update_rod(xr, qr, step, t, xt, qt)
-                    evaluated = False
-                if not evaluated:
-                    Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], gt, Dt, Ot)
             # accept the trial: it and its derivatives become the state's
             xr[:] = xt
             qr[:] = qt
