@@ -54,6 +54,7 @@ References
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -351,14 +352,16 @@ def _where(mask: np.ndarray, a: RodState, b: RodState) -> RodState:
 
 def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0), tip_moment_n_m=(0.0, 0.0, 0.0),
                  clamp=(1.0, 0.0, 0.0, 0.0), root_m=(0.0, 0.0, 0.0), start: RodState | None = None, increments: int = 1,
-                 rtol: float = 1e-10, max_iterations: int = 60, loads: PointLoads | None = None) -> RodState:
+                 rtol: float = 1e-10, max_iterations: int = 60, loads: PointLoads | None = None, compiled: bool = True) -> RodState:
     """The rods' equilibrium under a dead tip force (N), tip moment (N m) and point ``loads`` (:class:`PointLoads`), all spatial, applied in
     ``increments`` equal load steps from ``start`` (default: the straight rods along the clamp frames'
     d3 from ``root_m``). Forces, moments, clamps and roots may carry leading axes: a batch of rods,
     solved together (each with its own trust region) and equal to solving each alone. Converged when
     the nodes' forces are balanced to ``rtol`` of the load scale and the frames' moments to that times
     a segment's length (or to the stiffnesses' round-off, 100 eps E A). Raises
-    :class:`mlsim.errors.SolverError` if Newton does not converge."""
+    :class:`mlsim.errors.SolverError` if Newton does not converge. ``compiled``: Newton's iterations in
+    :mod:`fem.cosserat_kernels` (numba) while a rod's Hessian is positive definite and its step inside the
+    trust region, the numpy code below (the reference) for the rest; False: numpy throughout."""
     F, M = np.asarray(tip_force_n, dtype=float), np.asarray(tip_moment_n_m, dtype=float)
     if not (np.all(np.isfinite(F)) and np.all(np.isfinite(M))):
         raise ValueError(f"tip_force_n = {F.tolist()}, tip_moment_n_m = {M.tolist()}: must be finite")
@@ -381,11 +384,16 @@ def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0)
     force_tol = np.maximum(rtol * load, 100.0 * eps * section.S.max())
     l = section.length_m / state.q.shape[-2]
     tolerances = (force_tol, np.maximum(force_tol * l, 100.0 * eps * section.B.max() / l))
-    # the matrices are small (6 N): BLAS threads only fight each other (60x slower on a loaded 2-core machine)
-    with threadpool_limits(1, user_api="blas"):
+    # the matrices are small (6 N): BLAS threads only fight each other (60x slower on a loaded 2-core machine);
+    # the compiled path calls no BLAS but in its numpy fallback, which sets the limit itself (0.6 ms a call)
+    if compiled:
+        from fem.cosserat_kernels import newton
+    else:
+        newton = _newton
+    with contextlib.nullcontext() if compiled else threadpool_limits(1, user_api="blas"):
         for k in range(1, increments + 1):
             part = None if loads is None else PointLoads(loads.segment, loads.along, loads.offset_m, loads.force_n * (k / increments))
-            state = _newton(state, section, clamp, F * k / increments, M * k / increments, tolerances, max_iterations,
+            state = newton(state, section, clamp, F * k / increments, M * k / increments, tolerances, max_iterations,
                             f"load step {k}/{increments}", part)
     return state
 
