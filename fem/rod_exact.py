@@ -45,7 +45,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from fem import cosserat_rod as cr
-from fem.rod_kinematics import RodSections, _face_rotation_rows
+from fem.rod_kinematics import RodSections, _face_rotation_rows, resultant_change
 
 __all__ = ["SEGMENTS", "layered_section", "root_observation", "attachments", "CosseratKinematics"]
 
@@ -160,10 +160,7 @@ class CosseratKinematics:
 
     def resultant_change(self, df: np.ndarray) -> float:
         """sum over rods of |sum of df (m, 3) N over the rod's points|, plus |df| of points off the rods (N)."""
-        on = self.point_rod >= 0
-        R = len(self.sections.rods)
-        per_rod = np.stack([np.bincount(self.point_rod[on], weights=df[on, c], minlength=R) for c in range(3)], axis=1)
-        return float(np.linalg.norm(per_rod, axis=1).sum() + np.linalg.norm(df[~on], axis=1).sum())
+        return resultant_change(df, self.point_rod, len(self.sections.rods))
 
     def root_motion(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The roots' translation (R, 3) m and rotation vector (R, 3) rad at point forces f (m, 3) N."""

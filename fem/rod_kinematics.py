@@ -295,6 +295,15 @@ def first_order_force_error(sections: RodSections, points: np.ndarray, du: np.nd
     return float(np.sqrt(num / den)) if den > 0 else 0.0
 
 
+def resultant_change(df: np.ndarray, point_rod: np.ndarray, n_rods: int) -> float:
+    """sum over rods of |sum of df (m, 3) N over the rod's points|, plus |df| of points off the rods (N):
+    the contact loop's measure of how far the kinematics' last round moved the load (point_rod (m,)
+    indexes the rods 0..n_rods - 1, -1 off them)."""
+    on = point_rod >= 0
+    per_rod = np.stack([np.bincount(point_rod[on], weights=df[on, c], minlength=n_rods) for c in range(3)], axis=1)
+    return float(np.linalg.norm(per_rod, axis=1).sum() + np.linalg.norm(df[~on], axis=1).sum())
+
+
 class RodKinematics:
     """The per-episode operators: section observation obs(f) = obs_0 + A f (f the forces on the
     contact points) and the contact points' geometry.
@@ -314,10 +323,7 @@ class RodKinematics:
 
     def resultant_change(self, df: np.ndarray) -> float:
         """sum over rods of |sum of df (m, 3) N over the rod's points|, plus |df| of points off the rods (N)."""
-        on = self.point_rod >= 0
-        R = len(self.sections.rods)
-        per_rod = np.stack([np.bincount(self.point_rod[on], weights=df[on, c], minlength=R) for c in range(3)], axis=1)
-        return float(np.linalg.norm(per_rod, axis=1).sum() + np.linalg.norm(df[~on], axis=1).sum())
+        return resultant_change(df, self.point_rod, len(self.sections.rods))
 
     def observe(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Section rotations (R, n_slabs + 1, 3) rad and tip displacements (R, 2) m at point forces f (m, 3) N."""
