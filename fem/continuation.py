@@ -20,6 +20,7 @@ import numpy as np
 
 from fem.indenters import Pose
 from fem.nonlinear import SolverError
+from mlsim.errors import OutOfRangeError
 
 __all__ = ["midpoint", "solve_with_halving"]
 
@@ -58,6 +59,8 @@ def _solve(step, pose_old, pose, start, depth, whole, jumps, too_deep, deep_at_t
                 if deep_at_the_end == "raise":
                     raise SolverError(deep)
                 return result
+        except OutOfRangeError:
+            raise  # a model's range, not a step too long: halving cannot help
         except SolverError:
             if depth <= 0:
                 raise

@@ -574,6 +574,11 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     # past its free Euler load buckles sideways in its own solve whatever holds its tip (seen on the default
     # demo's flat punch, rods at 1.1 x: the rounds diverged and the normal force fell from 18.4 N to 2.8 N)
     euler_n = _euler_load_n(scene) if second_order else None
+    if exact and kinematics is not None:
+        # every round of the contact loop, before the rods are solved: the rounds' fixed point diverges past the
+        # limit (to an answer with little force, which the check after the step would pass)
+        kinematics.guard = lambda f: _check_buckling(f, rod, n_rods, euler_n, settings.buckling_limit, "a contact round", settings.tier,
+                                                     "Cosserat rods under dead contact loads")
 
     steps = grid.step_times_s
     S = len(steps)
@@ -664,7 +669,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                     worst["unlinearised"].append(s)
             _check_small_strain(u - u0, rod, rod_height, settings.small_strain_limit, case, settings.tier)
             if euler_n is not None:
-                _check_buckling(info["f"], rod, n_rods, euler_n, settings.buckling_limit, case, settings.tier)
+                _check_buckling(info["f"], rod, n_rods, euler_n, settings.buckling_limit, case, settings.tier,
+                                "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)")
             bend = bending_ratio(u - u0, rod, rod_height)
             if bend > worst_bend[0]:
                 worst_bend[:] = [bend, s]
@@ -860,7 +866,8 @@ def _euler_load_n(scene) -> float:
     return rod_kinematics.euler_load_n(g.rod_radius_m, g.rod_height_m, young, [g.absorber_m, g.ml_m])
 
 
-def _check_buckling(f: np.ndarray, rod: np.ndarray, n_rods: int, euler_n: float, limit: float, case: str, tier: str) -> None:
+def _check_buckling(f: np.ndarray, rod: np.ndarray, n_rods: int, euler_n: float, limit: float, case: str, tier: str,
+                    model: str = "second-order rod kinematics (P-delta)") -> None:
     """Refuse a step where a rod's axial (compressive) contact load, from the point forces f (m, 3) N
     on the body at points of rods ``rod`` (m,) (-1: the base), passes ``limit`` x its Euler load: the
     second-order rod kinematics' P-delta model then runs away (fem.rod_kinematics.euler_load_n). Seen:
@@ -874,7 +881,7 @@ def _check_buckling(f: np.ndarray, rod: np.ndarray, n_rods: int, euler_n: float,
         raise OutOfRangeError(
             f"{case}: rod {j} carries {axial[j]:.3g} N along its axis, {axial[j] / euler_n:.2f} x its Euler buckling load "
             f"{euler_n:.3g} N (base clamped, tip free: pi^2 EI / 4 L^2 of its layered section), beyond "
-            f"fidelity.solve.buckling_limit = {limit}: the {tier} tier's second-order rod kinematics (P-delta) cannot follow a rod "
+            f"fidelity.solve.buckling_limit = {limit}: the {tier} tier's {model} cannot follow a rod "
             'near buckling. Use fidelity.solve.tier = "nonlinear", a shallower press, shorter or thicker rods, or raise '
             "buckling_limit to accept the error")
 

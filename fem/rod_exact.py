@@ -155,6 +155,9 @@ class CosseratKinematics:
         _, H0 = cr.gradient_and_hessian(straight, section, np.array([1.0, 0.0, 0.0, 0.0]))
         self._H0_factor = np.linalg.cholesky(H0)
         self._warm: dict[int, cr.RodState] = {}
+        # guard(f): raises where the forces f (m, 3) N load a rod past what dead loads can follow (the tier's
+        # buckling check, fem.quasistatic._check_buckling), before any rod is solved under them
+        self.guard = None
 
     # --- the pieces -----------------------------------------------------------------------------------
 
@@ -185,6 +188,8 @@ class CosseratKinematics:
         """Each loaded rod in equilibrium under its points' forces f (m, 3) N, clamped where the body puts its
         root, all in one batch (:func:`fem.cosserat_rod.solve_static`), each from its last answer:
         {rod: (state, its loads, root translation, root rotation)}."""
+        if self.guard is not None:
+            self.guard(f)
         u_r, th_r = self.root_motion(f)
         loaded = [j for j, pts in enumerate(self._points) if len(pts) and np.any(f[pts])]
         if not loaded:

@@ -133,3 +133,13 @@ def test_the_tiny_press_and_slide_within_5_percent_of_the_nonlinear_tier(tiny_me
         assert err["tip_displacement"] <= 0.05, (tier, err)
         # not the linear answer in disguise: first order is 40-75 % off here
         assert math.isfinite(err["rod_contact_force"])
+
+
+def test_a_rod_past_the_buckling_limit_is_refused_in_the_contact_round(tiny_mesh, body):
+    """The rods take dead contact loads: past their free Euler load the contact's rounds diverge to an answer
+    with little force (the default demo's flat punch: 2.8 N against 18.4 N), which a check after the step
+    would pass. So the check runs in every round, before the rods are solved, and names the field."""
+    scene, _, mesh, _ = tiny_mesh
+    tight = scene.with_values({"fidelity.solve.rod_kinematics": "cosserat", "fidelity.solve.buckling_limit": 0.01})
+    with pytest.raises(qs.OutOfRangeError, match=r"a contact round: rod \d+ carries .* Cosserat rods under dead contact loads .*buckling_limit"):
+        qs.run_episode(tight, mesh, body=body)
