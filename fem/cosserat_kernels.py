@@ -1,5 +1,9 @@
 """Compiled (numba) kernels for the discrete Cosserat rod's Newton solve (:mod:`fem.cosserat_rod`).
 
+About 610 lines: one compiled loop per rod for each of the numpy reference's pieces (energy, gradient and
+Hessian blocks, block Cholesky, the boundary step, the update, Newton), each kept beside its helpers so
+that a kernel reads against the numpy function it equals; splitting them would split those pairs.
+
 The numpy reference spends its ~11 ms a Newton iteration (4 rods of 8 segments) in Python's overhead
 over hundreds of tiny array operations; the work itself is a few thousand flops a rod. Here each rod
 is one loop over its segments, joints and point loads:
@@ -17,8 +21,9 @@ is one loop over its segments, joints and point loads:
   dead tip moment, Newton's step with the same turn limit and backtracking on the imbalance. Each rod
   iterates alone, as each does in numpy's batch (its own radius; frozen once converged). A rod whose
   Hessian is not positive definite (a column past its buckling load, still straight), or that runs
-  out of iterations, is returned flagged at its last accepted state; :func:`newton` hands those to
-  the numpy trust region (its radius starting again at MAX_TURN_RAD).
+  out of iterations, is returned flagged at its last accepted state; ``fem.cosserat_rod`` hands those
+  to the numpy trust region (its radius starting again at MAX_TURN_RAD). This module imports nothing
+  of ``fem.cosserat_rod`` (its caller).
 
 Verified in tests/test_cosserat_kernels.py against the numpy functions to round-off, and the whole
 solve (``fem.cosserat_rod.solve_static(compiled=True)``, the default) against the numpy path to 1e-9
@@ -34,7 +39,6 @@ import math
 
 import numpy as np
 from numba import njit
-from threadpoolctl import threadpool_limits
 
 CONVERGED, FALLBACK = 0, 1
 
@@ -604,27 +608,3 @@ def flatten_problem(state, section, clamp, F, M, loads, lead):
         return flat + (np.zeros((nrods, 0), np.int64), np.zeros((nrods, 0)), np.zeros((nrods, 0, 3)), np.zeros((nrods, 0, 3)))
     return flat + (_owned(loads.segment, lead + (k,), np.int64).reshape(nrods, k), _owned(loads.along, lead + (k,)).reshape(nrods, k),
                    _owned(loads.offset_m, lead + (k, 3)).reshape(nrods, k, 3), _owned(loads.force_n, lead + (k, 3)).reshape(nrods, k, 3))
-
-
-def newton(state, section, clamp, F, M, tolerances, max_iterations: int, where: str, loads=None):
-    """fem.cosserat_rod._newton's answer: :func:`newton_batch` on every rod, then the numpy trust region
-    (fem.cosserat_rod._newton) from where it stopped on the rods it flagged. Same arguments, with clamp,
-    F, M and the tolerances broadcast to the batch's leading shape."""
-    from fem import cosserat_rod as cr
-
-    lead = np.broadcast_shapes(np.shape(clamp)[:-1], np.shape(F)[:-1], np.shape(M)[:-1], state.q.shape[:-2],
-                               np.shape(tolerances[0]), np.shape(tolerances[1]))
-    n = state.q.shape[-2]
-    x, q, clamp_f, F_f, M_f, seg, along, offset, force = flatten_problem(state, section, clamp, F, M, loads, lead)
-    nrods = x.shape[0]
-    tol_f, tol_m = _owned(tolerances[0], lead).reshape(nrods), _owned(tolerances[1], lead).reshape(nrods)
-    status, _ = newton_batch(x, q, clamp_f, float(section.length_m), section.S, section.B, F_f, M_f, seg, along, offset, force,
-                             tol_f, tol_m, int(max_iterations), not np.any(M_f), cr.MAX_TURN_RAD)
-    rest = np.flatnonzero(status != CONVERGED)
-    if rest.size:
-        part = None if loads is None else cr.PointLoads(seg[rest], along[rest], offset[rest], force[rest])
-        with threadpool_limits(1, user_api="blas"):  # small matrices: BLAS threads only fight each other
-            done = cr._newton(cr.RodState(x[rest], q[rest]), section, clamp_f[rest], F_f[rest], M_f[rest], (tol_f[rest], tol_m[rest]),
-                              max_iterations, where, part)
-        x[rest], q[rest] = done.x, done.q
-    return cr.RodState(x.reshape(lead + (n + 1, 3)), q.reshape(lead + (n, 4)))

@@ -386,16 +386,38 @@ def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0)
     tolerances = (force_tol, np.maximum(force_tol * l, 100.0 * eps * section.B.max() / l))
     # the matrices are small (6 N): BLAS threads only fight each other (60x slower on a loaded 2-core machine);
     # the compiled path calls no BLAS but in its numpy fallback, which sets the limit itself (0.6 ms a call)
-    if compiled:
-        from fem.cosserat_kernels import newton
-    else:
-        newton = _newton
+    newton = _newton_compiled if compiled else _newton
     with contextlib.nullcontext() if compiled else threadpool_limits(1, user_api="blas"):
         for k in range(1, increments + 1):
             part = None if loads is None else PointLoads(loads.segment, loads.along, loads.offset_m, loads.force_n * (k / increments))
             state = newton(state, section, clamp, F * k / increments, M * k / increments, tolerances, max_iterations,
                             f"load step {k}/{increments}", part)
     return state
+
+
+def _newton_compiled(state: RodState, section: RodSection, clamp, F, M, tolerances, max_iterations: int, where: str,
+                     loads: PointLoads | None = None) -> RodState:
+    """:func:`_newton`'s answer: the compiled Newton (:func:`fem.cosserat_kernels.newton_batch`) on every rod,
+    then the numpy trust region from where it stopped on the rods it flagged (an indefinite Hessian, or
+    out of iterations). clamp, F, M and the tolerances are broadcast to the batch's leading shape."""
+    from fem import cosserat_kernels as ck
+
+    lead = np.broadcast_shapes(np.shape(clamp)[:-1], np.shape(F)[:-1], np.shape(M)[:-1], state.q.shape[:-2],
+                               np.shape(tolerances[0]), np.shape(tolerances[1]))
+    n = state.q.shape[-2]
+    x, q, clamp_f, F_f, M_f, seg, along, offset, force = ck.flatten_problem(state, section, clamp, F, M, loads, lead)
+    nrods = x.shape[0]
+    tol_f, tol_m = ck._owned(tolerances[0], lead).reshape(nrods), ck._owned(tolerances[1], lead).reshape(nrods)
+    status, _ = ck.newton_batch(x, q, clamp_f, float(section.length_m), section.S, section.B, F_f, M_f, seg, along, offset, force,
+                                tol_f, tol_m, int(max_iterations), not np.any(M_f), MAX_TURN_RAD)
+    rest = np.flatnonzero(status != ck.CONVERGED)
+    if rest.size:
+        part = None if loads is None else PointLoads(seg[rest], along[rest], offset[rest], force[rest])
+        with threadpool_limits(1, user_api="blas"):  # small matrices: BLAS threads only fight each other
+            done = _newton(RodState(x[rest], q[rest]), section, clamp_f[rest], F_f[rest], M_f[rest], (tol_f[rest], tol_m[rest]),
+                           max_iterations, where, part)
+        x[rest], q[rest] = done.x, done.q
+    return RodState(x.reshape(lead + (n + 1, 3)), q.reshape(lead + (n, 4)))
 
 
 def _imbalance(g: np.ndarray, tolerances) -> np.ndarray:
