@@ -515,9 +515,10 @@ class SolveFidelity(_Model):
     # linear/reduced tiers: refuse a step where a contact point moves more than this fraction of the
     # rod height (small-strain kinematics are no longer valid there; see fem.quasistatic)
     small_strain_limit: Annotated[float, Strict(), Field(gt=0.0, le=10.0)] = 0.5
-    # linear/reduced tiers with rod_kinematics "second_order": refuse a step where a rod's axial contact
-    # load passes this fraction of its Euler buckling load (fixed base, free tip; fem.rod_kinematics.euler_load_n):
-    # the P-delta model cannot follow a rod near buckling (a swipe over 10.5 mm rods dragged tips 4-13 mm)
+    # linear/reduced tiers with rod_kinematics "second_order" or "cosserat": refuse a step (cosserat: a contact
+    # round) where a rod's axial contact load passes this fraction of its Euler buckling load (fixed base, free
+    # tip; fem.rod_kinematics.euler_load_n): the P-delta model cannot follow a rod near buckling (a swipe over
+    # 10.5 mm rods dragged tips 4-13 mm), nor can Cosserat rods under dead contact loads (fem.rod_exact)
     buckling_limit: Annotated[float, Strict(), Field(gt=0.0, le=10.0)] = 0.5
     # linear/reduced tiers' contact step: "admm" (bounded work on the Delassus operator, fem.contact_admm)
     # or "newton" (semi-smooth Newton on the penalty law smoothed over 1e-7 h, fem.condensed; slower,
