@@ -159,10 +159,11 @@ class CosseratKinematics:
         self._attach = [attachments(self.X[p], sections.centre[j, :2], sections.base_z_m, sections.length_m, segments)
                         for j, p in enumerate(self._points)]
         # the straight rod's Hessian (the same for every rod: a rod's place does not change it)
-        straight = cr.straight_rod(section, segments)
-        _, H0 = cr.gradient_and_hessian(straight, section, np.array([1.0, 0.0, 0.0, 0.0]))
+        self._straight = cr.straight_rod(section, segments)
+        _, H0 = cr.gradient_and_hessian(self._straight, section, np.array([1.0, 0.0, 0.0, 0.0]))
         self._H0_factor = np.linalg.cholesky(H0)
         self._warm: dict[int, cr.RodState] = {}
+        self._last_answers = (None, [])  # (forces, _answers' list): the field recovery asks twice per distinct load
         # guard(f): raises where the forces f (m, 3) N load a rod past what dead loads can follow (the tier's
         # buckling check, fem.quasistatic._check_buckling), before any rod is solved under them
         self.guard = None
@@ -180,8 +181,7 @@ class CosseratKinematics:
 
     def _linear_dofs(self, loads: cr.PointLoads) -> np.ndarray:
         """The straight rod's linear response (..., 6 N) to ``loads`` (its Hessian's solve)."""
-        straight = cr.straight_rod(self.section, self.segments)
-        g0, _ = cr.gradient_and_hessian(straight, self.section, np.array([1.0, 0.0, 0.0, 0.0]), loads=loads, hessian=False)
+        g0, _ = cr.gradient_and_hessian(self._straight, self.section, np.array([1.0, 0.0, 0.0, 0.0]), loads=loads, hessian=False)
         return -cr._cho_solve(self._H0_factor, g0)
 
     @staticmethod
@@ -234,7 +234,14 @@ class CosseratKinematics:
 
     # --- the interface of the contact loop --------------------------------------------------------------
 
-    def _answers(self, f: np.ndarray):
+    def _answers(self, f: np.ndarray) -> list:
+        """:meth:`_rod_answers` as a list, reused when asked again for the same forces."""
+        last_f, last = self._last_answers
+        if last_f is None or not np.array_equal(last_f, f):
+            self._last_answers = (f.copy(), list(self._rod_answers(f)))
+        return self._last_answers[1]
+
+    def _rod_answers(self, f: np.ndarray):
         """Per loaded rod j: (j, state, root translation, root rotation, P-delta load on its points (k, 3) N,
         the straight rod's linear dofs under its forces and that load)."""
         for j, (state, loads, u_r, th_r) in self.solve_rods(f).items():
