@@ -574,11 +574,11 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     # past its free Euler load buckles sideways in its own solve whatever holds its tip (seen on the default
     # demo's flat punch, rods at 1.1 x: the rounds diverged and the normal force fell from 18.4 N to 2.8 N)
     euler_n = _euler_load_n(scene) if second_order else None
+    rod_model = "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)"
     if exact and kinematics is not None:
         # every round of the contact loop, before the rods are solved: the rounds' fixed point diverges past the
         # limit (to an answer with little force, which the check after the step would pass)
-        kinematics.guard = lambda f: _check_buckling(f, rod, n_rods, euler_n, settings.buckling_limit, "a contact round", settings.tier,
-                                                     "Cosserat rods under dead contact loads")
+        kinematics.guard = lambda f: _check_buckling(f, rod, n_rods, euler_n, settings.buckling_limit, "a contact round", settings.tier, rod_model)
 
     steps = grid.step_times_s
     S = len(steps)
@@ -669,8 +669,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                     worst["unlinearised"].append(s)
             _check_small_strain(u - u0, rod, rod_height, settings.small_strain_limit, case, settings.tier)
             if euler_n is not None:
-                _check_buckling(info["f"], rod, n_rods, euler_n, settings.buckling_limit, case, settings.tier,
-                                "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)")
+                _check_buckling(info["f"], rod, n_rods, euler_n, settings.buckling_limit, case, settings.tier, rod_model)
             bend = bending_ratio(u - u0, rod, rod_height)
             if bend > worst_bend[0]:
                 worst_bend[:] = [bend, s]
