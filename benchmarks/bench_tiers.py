@@ -7,8 +7,10 @@ then the median over --repeats episodes of the per-frame cost (contact steps plu
 divided by the frames); per kind of frame (moving contact, hold, free) the median of each step's
 contact time plus its share of the field recovery; the contact (for ``nonlinear``: Newton)
 iterations per step and their largest; and each tier's difference from the first linear run
-(peak per-rod ML-layer von Mises, per-rod normal force). The machine and the medians go to stdout
-and to ``OUT/tiers.json``. The nonlinear tier takes minutes per episode (--nonlinear-repeats). Usage:
+(peak per-rod ML-layer von Mises, per-rod normal force); for ``nonlinear`` each step's seconds, their
+median and worst, and how many steps needed a retry (the penalty Newton, following the iterates). The
+machine and the medians go to stdout and to ``OUT/tiers.json``. The nonlinear tier takes minutes per
+episode (--nonlinear-repeats). Usage:
 
     .venv/bin/python benchmarks/bench_tiers.py [--repeats 3] [--tiers linear reduced nonlinear]
         [--contact-solvers admm newton] [--scene SCENE] [--out out/bench]
@@ -78,6 +80,9 @@ def _episode_costs(scene, mesh, repeats, **kw):
         "n_frames": ep.n_frames,
         "contact_iterations_total": int(ep.iterations.sum()),
         "contact_iterations_per_step": ep.iterations.tolist(),
+        # each step's own wall time (first run): the nonlinear tier's cost is in its worst steps
+        "step_ms": [float(v) for v in runs[0].get("contact_step_ms", [])],
+        "step_counts": {k: runs[0][k] for k in ("penalty_newton_steps", "followed_iterates_steps", "stalled_steps_accepted") if k in runs[0]},
     }
 
 
@@ -157,7 +162,13 @@ def main() -> None:
         if "difference_from_linear" in r:
             print(f"  {tier} vs {lin_name}: {r['difference_from_linear']}")
     if "nonlinear" in result:
-        print("nonlinear Newton iterations per step:", result["nonlinear"]["contact_iterations_per_step"])
+        r = result["nonlinear"]
+        print("nonlinear Newton iterations per step:", r["contact_iterations_per_step"])
+        if r["step_ms"]:
+            steps_s = np.asarray(r["step_ms"]) / 1e3
+            print(f"nonlinear seconds per step (median {np.median(steps_s):.1f}, worst {steps_s.max():.1f} at step {int(steps_s.argmax())}, "
+                  f"total {steps_s.sum():.0f}):", np.round(steps_s, 1).tolist())
+            print("nonlinear steps by how they converged:", r["step_counts"])
 
 
 if __name__ == "__main__":

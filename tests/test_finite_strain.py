@@ -132,17 +132,45 @@ def test_condensed_newton_gives_the_penalty_newtons_answer_on_a_press(tiny_mesh)
     assert condensed_ep.seconds["penalty_newton_steps"] == 0  # every step converged condensed
 
 
+def test_a_step_whose_first_tries_fail_is_finished_by_following_its_iterates(tiny_mesh, monkeypatch):
+    """_Problem.path's retry before the penalty Newton: the condensed Newton with every contact solve
+    linearised at its last iterate's points. With the first try and the fresh linearisation made to fail
+    at every step, the press is done by that retry alone (no penalty Newton) and lands on the default's
+    answer: a press has one equilibrium (per-rod forces within 1e-4 of the peak)."""
+    from fem import finite_strain
+    from mlsim.errors import SolverError
+
+    scene0, _, mesh, _ = tiny_mesh
+    scene = _scene(scene0, [{"kind": "press", "depth_mm": 0.9, "speed_mm_s": 9.0}], friction=0.8)
+    default = run_nonlinear_episode(scene, mesh)
+    step = finite_strain._Problem.condensed_step
+
+    def failing_first(self, x0, pose, pose_old, state, case, follow_iterates=False):
+        if not follow_iterates:
+            raise SolverError(f"{case}: made to fail")
+        return step(self, x0, pose, pose_old, state, case, follow_iterates=True)
+
+    monkeypatch.setattr(finite_strain._Problem, "condensed_step", failing_first)
+    followed = run_nonlinear_episode(scene, mesh)
+    peak = np.abs(default.rod_force_n).max()
+    assert peak > 0.5
+    np.testing.assert_allclose(followed.rod_force_n, default.rod_force_n, rtol=0, atol=1e-4 * peak)
+    assert followed.seconds["penalty_newton_steps"] == 0
+    assert followed.seconds["followed_iterates_steps"] >= len(followed.rod_force_n) - 1
+    assert default.seconds["followed_iterates_steps"] == 0
+
+
 class _LoggedSteps:
     """A stand-in for :class:`fem.finite_strain._Problem` that records where each condensed step starts:
     a move longer than 0.6 (in x) fails, a shorter one lands at the start plus the move."""
 
-    contact_solver, _fresh_first, _condensed, fallbacks, max_penetration_m, k_n = "admm", False, None, 0, 1.0, 1.0
+    contact_solver, _fresh_first, _condensed, fallbacks, followed_steps, max_penetration_m, k_n = "admm", False, None, 0, 0, 1.0, 1.0
     _adopts = False  # quasi-static: a fresh linearisation serves its step only
 
     def __init__(self):
         self.starts = []
 
-    def condensed_step(self, x, pose, pose_old, state, case):
+    def condensed_step(self, x, pose, pose_old, state, case, follow_iterates=False):
         from fem.nonlinear import SolverError
 
         move = pose.position_m[0] - pose_old.position_m[0]
@@ -178,8 +206,9 @@ def test_a_half_step_starts_from_the_state_it_continues_not_from_the_whole_moves
     x0, guess = np.array([0.0]), np.array([5.0])
     state = PointState(np.zeros((1, 3)), np.zeros((1, 3)))
     x, _ = finite_strain._Problem.path(problem, x0, Pose((1.0, 0.0, 0.0), 0.0), Pose((0.0, 0.0, 0.0), 0.0), state, "move", guess=guess)
-    # the whole move from the guess (twice: the kept and the re-made linearisation), then two halves chained
-    assert problem.starts == [(5.0, 0.0), (5.0, 0.0), (0.0, 0.0), (0.5, 0.5)]
+    # the whole move from the guess (three times: the kept linearisation, the re-made one, the kept one
+    # following its iterates), then two halves chained
+    assert problem.starts == [(5.0, 0.0), (5.0, 0.0), (5.0, 0.0), (0.0, 0.0), (0.5, 0.5)]
     assert x[0] == pytest.approx(1.0)
 
 
@@ -198,3 +227,28 @@ def test_force_control_on_the_nonlinear_tier_is_the_press_to_the_height_it_found
     assert 0.5 < depth_mm < 0.6  # past the 0.5 mm gap onto the tips
     press = run_nonlinear_episode(_scene(scene0, [{"kind": "press", "depth_mm": depth_mm, "speed_mm_s": depth_mm / 0.1}]), mesh)
     assert press.normal_force_n[-1] == pytest.approx(0.4, rel=1e-3)
+
+
+def test_the_contact_solve_keeps_the_start_of_a_point_an_iterate_carried_off_the_indenter():
+    """_Problem._linearise_at: each point at the last outer iterate's position, except one the iterate put
+    off the indenter while the step's start carried by the indenter (anchor) has it inside: that one keeps
+    its start (the branch the step continues). A point inside at both takes the iterate's even where the
+    start lay deeper; one the iterate brought to the indenter takes the iterate's; one off at both too."""
+    from types import SimpleNamespace
+
+    from fem import finite_strain
+    from fem.indenters import IndenterShape, Pose, gap
+
+    punch = IndenterShape("flat", (5e-3, 2e-3), 0.5e-3)  # its flat face at z = 0, the body below it
+    pose = Pose((0.0, 0.0, 0.0), 0.0)
+    X = np.array([[0.0, 0.0, -1e-4], [1e-3, 0.0, -1e-4], [2e-3, 0.0, -1e-4], [4.8e-3, 0.0, -1e-4], [1e-3, 1e-3, -1e-4], [0.0, 1e-3, -3e-4]])
+    problem = SimpleNamespace(shape=punch, points=SimpleNamespace(X=X))
+    # anchors: points 0, 1, 3, 4 inside at the start, 2 and 5 outside
+    anchor = np.array([[0.0, 0.0, 2e-4], [0.0, 0.0, 1.5e-4], [0.0, 0.0, 0.0], [0.0, 0.0, 2e-4], [0.0, 0.0, 3e-4], [0.0, 0.0, 0.0]])
+    # iterates: 0 deeper, 1 off, 2 in, 3 off past the rim, 4 in but shallower than its start, 5 still off
+    iterate = np.array([[0.0, 0.0, 3e-4], [0.0, 0.0, -1e-4], [0.0, 0.0, 2e-4], [3e-3, 0.0, 0.0], [0.0, 0.0, 1.2e-4], [0.0, 0.0, 1e-4]])
+    assert np.array_equal(gap(punch, pose, X + anchor) < 0, [True, True, False, True, True, False])
+    assert np.array_equal(gap(punch, pose, X + iterate) > 0, [False, True, False, True, False, True])
+    chosen = finite_strain._Problem._linearise_at(problem, iterate, anchor, pose)
+    kept = np.array([False, True, False, True, False, False])
+    np.testing.assert_array_equal(chosen, np.where(kept[:, None], anchor, iterate))
