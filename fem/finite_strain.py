@@ -826,9 +826,10 @@ class _Inertia:
         return self.advance(problem, xa, va, pa, mid, pose, 0.5 * dt, case, depth - 1)
 
 
-def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
+def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False, log=None):
     """Solve the scene's load on ``mesh`` with the ``nonlinear`` tier; returns a
-    :class:`fem.quasistatic.Episode` (tier ``"nonlinear"``, element ``"P2P1"``)."""
+    :class:`fem.quasistatic.Episode` (tier ``"nonlinear"``, element ``"P2P1"``). ``log`` (a callable
+    taking a line) gets a warning naming the steps that only following their iterates finished."""
     from fem.elasticity import dof_components
     from fem.episode import ContactSetup, Episode, LinearBody, SolveSettings, _bar, _check_finite, layer_materials, path_points
 
@@ -895,7 +896,9 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
         timings["rod_first_mode_hz"] = inertia.omega_1 / (2.0 * np.pi)
     t_loop = time.perf_counter()
     step_ms = np.zeros(S)
+    followed = []  # steps finished only by following their iterates (_Problem.path's last condensed retry)
     for s, t in enumerate(steps):
+        followed_before = problem.followed_steps
         t_step = time.perf_counter()
         state = trajectory.advance(load, state, t, normal_now)
         case = f"step {s} (t = {t * 1e3:.1f} ms)"
@@ -955,6 +958,8 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
         if inertia is not None:
             inertia.remember(x, r_int)
         step_ms[s] = 1e3 * (time.perf_counter() - t_step)
+        if problem.followed_steps > followed_before:
+            followed.append(s)
         bar(s + 1)
     timings["contact_steps"] = time.perf_counter() - t_loop
     # each step's wall time, its fields included (benchmarks/bench_tiers.py: median and worst by kind of step)
@@ -963,6 +968,11 @@ def run_nonlinear_episode(scene, mesh, settings=None, progress: bool = False):
     timings["contact_iterations"] = problem.contact_iterations
     timings["penalty_newton_steps"] = problem.fallbacks
     timings["followed_iterates_steps"] = problem.followed_steps
+    if followed and log is not None and inertia is None:
+        log(f"warning: steps {followed} converged only following their own iterates, where the kept linearisation's "
+            "first tries failed: on the default demo these were release steps where rods held bent by friction "
+            "snap back, past which a quasi-static step has one of several equilibria (two of them 1.8 % apart "
+            "in that step's per-rod forces); for the snap itself set fidelity.solve.dynamics = \"backward_euler\"")
     timings["stalled_steps_accepted"] = problem.stalled_steps
     timings["max_stalled_relative_residual"] = problem.max_stalled_residual
     if inertia is not None:

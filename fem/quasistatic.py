@@ -467,7 +467,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     if settings.tier == "nonlinear":
         from fem.finite_strain import run_nonlinear_episode
 
-        return run_nonlinear_episode(scene, mesh, settings, progress=progress)
+        return run_nonlinear_episode(scene, mesh, settings, progress=progress, log=log)
     if settings.tier not in ("linear", "reduced"):
         raise ValueError(f'fidelity.solve.tier = "{settings.tier}": choose "reduced", "linear" or "nonlinear"')
     if settings.rod_kinematics in ("second_order", "cosserat") and settings.contact_solver != "admm":

@@ -151,13 +151,16 @@ def test_a_step_whose_first_tries_fail_is_finished_by_following_its_iterates(tin
         return step(self, x0, pose, pose_old, state, case, follow_iterates=True)
 
     monkeypatch.setattr(finite_strain._Problem, "condensed_step", failing_first)
-    followed = run_nonlinear_episode(scene, mesh)
+    lines = []
+    followed = run_nonlinear_episode(scene, mesh, log=lines.append)
     peak = np.abs(default.rod_force_n).max()
     assert peak > 0.5
     np.testing.assert_allclose(followed.rod_force_n, default.rod_force_n, rtol=0, atol=1e-4 * peak)
     assert followed.seconds["penalty_newton_steps"] == 0
-    assert followed.seconds["followed_iterates_steps"] >= len(followed.rod_force_n) - 1
+    assert followed.seconds["followed_iterates_steps"] == len(followed.rod_force_n)  # every step, the first at rest too
     assert default.seconds["followed_iterates_steps"] == 0
+    # the run log names the steps and the dynamics that follow a snap
+    assert len(lines) == 1 and f"steps {list(range(len(followed.rod_force_n)))}" in lines[0] and "backward_euler" in lines[0]
 
 
 class _LoggedSteps:
