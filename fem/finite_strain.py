@@ -77,8 +77,9 @@ CONDENSED_ADMM_RTOL = 1e-7
 # CONDENSED_ADMM_RTOL); a step is accepted only on an iteration solved to CONDENSED_ADMM_RTOL.
 # 0: every contact solve to CONDENSED_ADMM_RTOL (the default). Since each contact solve starts from the last
 # iterate's points (condensed_step), a tight solve late in a step costs 5-40 ADMM iterations; default demo,
-# quiet 2-core machine: 147 s and 272 outer iterations with 0, 143 s and 325 with 1e-2, which also left
-# steps stalling between loose and tight solves (relative residuals 3e-7 and 4e-5 in turn, before that start)
+# quiet 2-core machine, every contact solve from the last iterate's points: 147 s and 272 outer iterations
+# with 0, 143 s and 325 with 1e-2, which also left steps stalling between loose and tight solves (relative
+# residuals 3e-7 and 4e-5 in turn, before that start)
 CONDENSED_ADMM_FORCING = 0.0
 CONDENSED_ADMM_LOOSEST = 1e-4
 CONDENSED_ANDERSON_MEMORY = 5  # differences kept by the outer iteration's Anderson acceleration
