@@ -307,11 +307,12 @@ def cmd_sweep(args) -> int:
         raise SceneError([Problem("--vary", None, "give at least one field to vary, e.g. --vary sensor.rod.height_mm=6,7.5,9,10.5,12")])
     if args.executor == "local" and args.address:
         raise SceneError([Problem("--address", args.address, "only with --executor ray")])
-    from mlsim.sweep.run import METRICS
+    from mlsim.sweep.run import METRICS, check_metrics
 
     wanted = tuple(m.strip() for part in args.metrics or [",".join(METRICS)] for m in part.split(",") if m.strip())
+    check_metrics(wanted)  # before a dry run too: it would price the known ones and say nothing of the rest
     loads = [read_load(p) for p in args.load] if args.load else None
-    direction = read_load(args.direction_scene or DEFAULT_DIRECTION) if "direction" in wanted else None
+    direction = read_load(args.direction_scene or DEFAULT_DIRECTION, "--direction-scene") if "direction" in wanted else None
     out = Path(args.out) if args.out else Path("out") / f"{scene.name}_sweep"
     if args.dry_run:
         from mlsim.dry_run import sweep_plan

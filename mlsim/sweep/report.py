@@ -64,7 +64,9 @@ def rows(records: list[dict], varies, load_names: list[str]) -> list[dict]:
                 reasons.append(f"{name}: no safety factor: the materials table gives {r.get('material_of_peak')} no elongation at break "
                                "or tensile strength (SPEC 1.2: not given; add them under [materials.NAME])")
         row["tear_risk"] = max(risks) if risks else None
-        row["tears"] = any(bool(row.get(f"{n}_tears")) for n in load_names)
+        # None (shown "-") where no load measured it (a refused variant, failed loads, no "tear" metric): not "no"
+        measured = [row[f"{n}_tears"] for n in load_names if row.get(f"{n}_tears") is not None]
+        row["tears"] = any(measured) if measured else None
         sep = rec.get("separation")
         if sep is not None:
             if sep.get("ok"):

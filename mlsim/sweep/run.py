@@ -35,8 +35,8 @@ from mlsim.io import atomic_bytes
 from mlsim.sweep import metrics
 from mlsim.sweep.variants import Variant, Vary
 
-__all__ = ["Load", "read_load", "escalated_scene", "SCENES", "DEFAULT_LOADS", "DEFAULT_DIRECTION", "DEFAULT_ANGLES", "METRICS", "run_variant_job", "variant_record", "sweep",
-           "stored_records"]
+__all__ = ["Load", "read_load", "check_metrics", "escalated_scene", "SCENES", "DEFAULT_LOADS", "DEFAULT_DIRECTION", "DEFAULT_ANGLES", "METRICS",
+           "run_variant_job", "variant_record", "sweep", "stored_records"]
 
 SCENES = Path(__file__).resolve().parents[2] / "scenes"
 DEFAULT_LOADS = (SCENES / "press.toml", SCENES / "swipe.toml")
@@ -68,16 +68,31 @@ class Load:
         return scene.with_values(values)
 
 
-def read_load(path: str | Path) -> Load:
-    """The load of a scene file: its ``[load]``, named by the file's stem."""
+def read_load(path: str | Path, flag: str = "--load") -> Load:
+    """The load of a scene file: its ``[load]``, named by the file's stem. ``flag``: the option that
+    named the file, for the error of a file that is missing, not TOML or has no ``[load]``."""
     path = Path(path)
+    # the whole path in the message: the error shows the value cut at 60 characters, the file's name with it
     if not path.is_file():
-        raise SceneError([Problem("--load", str(path), "no such scene file")])
-    data = tomllib.loads(path.read_text(encoding="utf-8"))
+        raise SceneError([Problem(flag, str(path), f"no such scene file (looked for {path.resolve()})")])
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError([Problem(flag, str(path), f"{path.resolve()} is not a TOML scene file: {exc}")]) from None
     if "load" not in data:
-        raise SceneError([Problem("--load", str(path), "the file has no [load] section to apply to the variants")])
+        raise SceneError([Problem(flag, str(path), "the file has no [load] section to apply to the variants")])
     solve = data.get("fidelity", {}).get("solve", {})
     return Load(path.stem, data["load"], {k: solve[k] for k in LOAD_SOLVE_FIELDS if k in solve})
+
+
+def check_metrics(wanted) -> None:
+    """Refuse a ``--metrics`` list with a name not in :data:`METRICS`, or none at all, before anything
+    runs (a dry run would price the rest and a sweep would measure nothing)."""
+    bad = [m for m in wanted if m not in METRICS]
+    if bad:
+        raise SceneError([Problem("--metrics", ",".join(bad), f"unknown metric; choose from: {', '.join(METRICS)}")])
+    if not wanted:
+        raise SceneError([Problem("--metrics", "", f"no metric given; choose from: {', '.join(METRICS)}")])
 
 
 # ------------------------------------------------------------------------------------ the worker
@@ -272,11 +287,9 @@ def sweep(base, varies: list[Vary], out_dir: str | Path, *, mode: str = "grid", 
     from mlsim.sweep.report import write_report
     from mlsim.sweep.variants import variants as make_variants
 
+    check_metrics(wanted)  # before the folder is made
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    bad = [m for m in wanted if m not in METRICS]
-    if bad:
-        raise SceneError([Problem("--metrics", ",".join(bad), f"unknown metric; choose from: {', '.join(METRICS)}")])
     loads = [read_load(p) for p in DEFAULT_LOADS] if loads is None else loads
     if direction is None and "direction" in wanted:
         direction = read_load(DEFAULT_DIRECTION)
