@@ -71,17 +71,12 @@ INNER_ITERATIONS = 30
 # the load; its contact solves (ADMM) to this relative tolerance
 CONDENSED_RTOL = 1e-6
 CONDENSED_ADMM_RTOL = 1e-7
-# an inexact fixed point (the forcing term of inexact Newton methods, Eisenstat and Walker 1996, on the
-# contact solve): an outer iteration whose body is still far from balance solves its contact only to
-# CONDENSED_ADMM_FORCING x the last relative residual (at most CONDENSED_ADMM_LOOSEST, never below
-# CONDENSED_ADMM_RTOL); a step is accepted only on an iteration solved to CONDENSED_ADMM_RTOL.
-# 0: every contact solve to CONDENSED_ADMM_RTOL (the default). Since each contact solve starts from the last
-# iterate's points (condensed_step), a tight solve late in a step costs 5-40 ADMM iterations; default demo,
-# quiet 2-core machine, every contact solve from the last iterate's points: 147 s and 272 outer iterations
-# with 0, 143 s and 325 with 1e-2, which also left steps stalling between loose and tight solves (relative
-# residuals 3e-7 and 4e-5 in turn, before that start)
-CONDENSED_ADMM_FORCING = 0.0
-CONDENSED_ADMM_LOOSEST = 1e-4
+# Every contact solve to CONDENSED_ADMM_RTOL. Solve stage 14 loosened those of iterations far from balance
+# (an inexact Newton forcing term, Eisenstat and Walker 1996: 1e-2 x the last relative residual); once each
+# contact solve started from the last iterate's points (condensed_step) a tight solve late in a step costs
+# 5-40 ADMM iterations, and on the default demo (quiet 2-core machine) the loose solves saved 4 s of 147 s
+# for 53 more outer iterations, and left steps stalling between loose and tight solves (relative residuals
+# 3e-7 and 4e-5 in turn): removed at stage 15
 CONDENSED_ANDERSON_MEMORY = 5  # differences kept by the outer iteration's Anderson acceleration
 # a step still this far off (relative residual) after this many iterations is halved: on the default demo
 # converging steps took 5-24 iterations to 1e-6 and were below 1e-3 by the 12th; a release step that
@@ -110,6 +105,12 @@ def _with_best(exc: SolverError, best) -> SolverError:
     fallbacks of :meth:`_Problem.path`."""
     exc.best = best
     return exc
+
+
+def _closer(best, exc: SolverError):
+    """The closer of ``best`` and the best iterate ``exc`` carries (:func:`_with_best`; either may be None)."""
+    other = getattr(exc, "best", None)
+    return other if other is not None and (best is None or other[0] < best[0]) else best
 
 
 def centroid_fields(d, x: np.ndarray, lam: np.ndarray, mu: np.ndarray):
@@ -304,7 +305,6 @@ class _Problem:
         history: list[float] = []
         best, best_it = None, 0  # (relative residual, state, law) of the best iterate where the contact forces were found
         xs, gs = [], []  # Anderson's memory: iterates and their updates G(x) - x (free DOFs)
-        admm_rtol = self._admm_rtol(None)
         u_guess = None  # the first contact solve linearises the gap at the points carried by the indenter
         anchor = state.u + condensed.rigid_motion(pose_old, pose, self.points.X + state.u)
         for it in range(self.max_iterations):
@@ -312,7 +312,7 @@ class _Problem:
             u0 = self.point_u(x) + (body.Wf.T @ y).reshape(-1, 3)
             u_points, law, info = condensed.solve_path(body.C, u0, self.points.X, self.shape, pose, pose_old, state, self.friction,
                                                        self.k_n, self.k_t, case=case, delassus=body.delassus, warm=body.warm, guess=u_guess,
-                                                       max_iterations=self.contact_max_iterations, admm_rtol=admm_rtol,
+                                                       max_iterations=self.contact_max_iterations, admm_rtol=self.admm_rtol,
                                                        max_penetration_m=self.max_penetration_m, max_jump_m=self.max_jump_m)
             self.contact_iterations += info["iterations"]
             self.iterations += 1
@@ -348,10 +348,8 @@ class _Problem:
             # the step started: on the default demo every outer iteration re-ran the step's 4 gap linearisations
             # from its start (95 + 81 + 27 + 23 ADMM iterations at each iteration of step 9: 5-40 from here)
             u_guess = u_points if follow_iterates else self._linearise_at(u_points, anchor, pose)
-            if norm <= self.condensed_rtol * scale and admm_rtol <= self.admm_rtol:
+            if norm <= self.condensed_rtol * scale:
                 return x_c, law, it + 1
-            # balanced on a loosely solved contact: the next iteration solves it to the full tolerance
-            admm_rtol = self.admm_rtol if norm <= self.condensed_rtol * scale else self._admm_rtol(history[-1])
             if not np.isfinite(norm):
                 raise SolverError(f"{case}: NaN or Inf in the condensed Newton iteration {it}")
             if best is None or history[-1] < best[0]:
@@ -403,16 +401,6 @@ class _Problem:
         g_new = indenter_gap(self.shape, pose, self.points.X + u_points)
         g_old = indenter_gap(self.shape, pose, self.points.X + anchor)
         return np.where(((g_old < 0.0) & (g_new > 0.0))[:, None], anchor, u_points)
-
-    def _admm_rtol(self, relative_residual: float | None) -> float:
-        """The contact solve's tolerance in an outer iteration after one at ``relative_residual`` (None: the
-        first): ``CONDENSED_ADMM_FORCING`` x it, between the full tolerance and ``CONDENSED_ADMM_LOOSEST``."""
-        if CONDENSED_ADMM_FORCING <= 0.0:
-            return self.admm_rtol
-        loosest = max(self.admm_rtol, CONDENSED_ADMM_LOOSEST)
-        if relative_residual is None or not np.isfinite(relative_residual):
-            return loosest
-        return float(np.clip(CONDENSED_ADMM_FORCING * relative_residual, self.admm_rtol, loosest))
 
     def _accept_stall(self, best) -> tuple:
         """(state, law) of a stalled condensed iteration's best iterate (relative residual, state, law),
@@ -501,9 +489,7 @@ class _Problem:
                             self._fresh_first = t_lin < t_try and not self._adopts
                             return x, law
                         except SolverError as again:
-                            other = getattr(again, "best", None)
-                            if other is not None and (best is None or other[0] < best[0]):
-                                best = other
+                            best = _closer(best, again)
                     # then the kept linearisation with every contact solve linearised at the last iterate's
                     # points alone: on the default demo the release steps where the punch lets rods go (the
                     # body at the step's start unstable without its contact: the rods are held bent by friction
@@ -515,9 +501,7 @@ class _Problem:
                         self.followed_steps += 1
                         return x, law
                     except SolverError as third:
-                        other = getattr(third, "best", None)
-                        if other is not None and (best is None or other[0] < best[0]):
-                            best = other
+                        best = _closer(best, third)
                     if best is not None and best[0] < CONDENSED_POLISH_FROM:
                         # stalled near the answer (the active set of a curved contact cycling between iterates,
                         # seen at relative residuals 1e-5 on a rod pushed sideways): Newton's quadratic tail
