@@ -209,10 +209,43 @@ def test_a_half_step_starts_from_the_state_it_continues_not_from_the_whole_moves
     x0, guess = np.array([0.0]), np.array([5.0])
     state = PointState(np.zeros((1, 3)), np.zeros((1, 3)))
     x, _ = finite_strain._Problem.path(problem, x0, Pose((1.0, 0.0, 0.0), 0.0), Pose((0.0, 0.0, 0.0), 0.0), state, "move", guess=guess)
-    # the whole move from the guess (three times: the kept linearisation, the re-made one, the kept one
-    # following its iterates), then two halves chained
+    # the whole move from the guess (three times: the kept linearisation, the kept one following its iterates,
+    # the re-made one), then two halves chained
     assert problem.starts == [(5.0, 0.0), (5.0, 0.0), (5.0, 0.0), (0.0, 0.0), (0.5, 0.5)]
     assert x[0] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("adopts, order", [(False, ["kept", "follow", "fresh", "newton"]), (True, ["kept", "fresh", "follow", "newton"])])
+def test_a_failed_step_follows_its_iterates_before_a_fresh_linearisation_unless_under_dynamics(adopts, order):
+    """_Problem.path's retries after the kept linearisation's first try fails: a quasi-static step follows its
+    own iterates first (on the default demo the fresh linearisation failed at both snap-back steps and cost
+    10-30 s each), a dynamic one linearises afresh first (kept for the steps after it, which start near it);
+    then the penalty Newton."""
+    from fem import finite_strain
+    from fem.condensed import PointState
+    from fem.indenters import Pose
+    from fem.nonlinear import SolverError
+
+    problem, tries = _LoggedSteps(), []
+    problem._adopts = adopts
+
+    def condensed_step(x, pose, pose_old, state, case, follow_iterates=False):
+        tries.append("follow" if follow_iterates else "kept")
+        raise SolverError(f"{case}: made to fail")
+
+    def fresh(x, pose, pose_old, state, case):
+        tries.append("fresh")
+        raise SolverError(f"{case}: made to fail")
+
+    def newton(x, pose, pose_old, state, case):
+        tries.append("newton")
+        raise SolverError(f"{case}: made to fail")
+
+    problem.condensed_step, problem._step_linearised_at, problem.newton = condensed_step, fresh, newton
+    state = PointState(np.zeros((1, 3)), np.zeros((1, 3)))
+    with pytest.raises(SolverError):
+        finite_strain._Problem.path(problem, np.array([0.0]), Pose((0.1, 0.0, 0.0), 0.0), Pose((0.0, 0.0, 0.0), 0.0), state, "move", depth=0)
+    assert tries == order
 
 
 def test_force_control_on_the_nonlinear_tier_is_the_press_to_the_height_it_found(tiny_mesh):
