@@ -160,10 +160,54 @@ def assemble(d: Discretisation, lam, mu) -> sp.csr_matrix:
         return skfem.asm(elasticity_form, d.u, lam=lam_q, mu=mu_q).tocsr()
     d.pressure_scale = float(np.max(mu))
     s = d.pressure_scale
-    a = skfem.asm(deviatoric_form, d.u, mu=mu_q)
+    a = deviatoric_matrix(d.u, mu_q)
     b = skfem.asm(divergence_form, d.p, d.u)  # (n_u, n_p)
     c = skfem.asm(pressure_mass_form, d.p, lam=_per_qp(lam, d.p))
     return sp.bmat([[a, s * b], [s * b.T, -(s * s) * c]], format="csr")
+
+
+def deviatoric_matrix(u: skfem.Basis, mu_q: np.ndarray, threads: int = 2) -> sp.csr_matrix:
+    """The displacement block of the mixed form, ``skfem.asm(deviatoric_form, u, mu=mu_q)``, bit for bit.
+
+    u: the displacement basis (N DOFs, n_b functions per element); mu_q: (T, n_q) Pa at the
+    quadrature points. Returns (N, N) CSR.
+
+    scikit-fem evaluates the form for each of the n_b^2 pairs of an element's basis functions (900
+    for P2), making both symmetric gradients anew for each (1800 of them), on one thread: 8.8 s of
+    the screw sensor's 14 s assembly. Here each function's symmetric gradient is made once, the form
+    on the pairs i <= j only (the form is symmetric, and so are its floating-point operations: the
+    same products summed in the same order), those pairs on ``threads`` threads (numpy's einsum and
+    ufuncs release the GIL); every value is then the one scikit-fem computes, and the sparse matrix
+    is made from them in scikit-fem's order (:meth:`skfem.assembly.form.coo_data.COOData.tocsr`:
+    the duplicate entries summed in the same order).
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from skfem.assembly.form.coo_data import COOData
+    from skfem.element.discrete_field import DiscreteField
+
+    nt, nb = u.nelems, u.Nbfun
+    dx = u.dx
+    # as the form reads them (skfem's FormExtraParams wraps a (T, n_q) array as a DiscreteField)
+    two_mu = 2.0 * DiscreteField(np.asarray(mu_q, dtype=float))
+    grads = [sym_grad(*u.basis[j]) for j in range(nb)]
+    data = np.zeros((nb, nb, nt))
+
+    def column(j: int) -> None:
+        # skfem's _kernel: np.sum(form(u_j, v_i, w) * dx, axis=1), form = 2.0 * w.mu * ddot(sym_grad(u_j), sym_grad(v_i))
+        for i in range(j, nb):
+            data[j, i] = data[i, j] = np.sum(two_mu * ddot(grads[j], grads[i]) * dx, axis=1)
+
+    with ThreadPoolExecutor(max(int(threads), 1)) as pool:
+        list(pool.map(column, range(nb)))  # column j has n_b - j pairs: the longest go first
+    rows = np.zeros(nb * nb * nt, dtype=np.int32)
+    cols = np.zeros(nb * nb * nt, dtype=np.int32)
+    for j in range(nb):
+        for i in range(nb):
+            ixs = slice(nt * (nb * j + i), nt * (nb * j + i + 1))
+            rows[ixs] = u.element_dofs[i]
+            cols[ixs] = u.element_dofs[j]
+    return COOData(np.array([rows, cols]), data.flatten("C"), (u.N, u.N), (nb, nb)).tocsr()
 
 
 def split(d: Discretisation, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:

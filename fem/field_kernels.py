@@ -10,7 +10,10 @@ loads of an episode) as sums of precomputed responses. Two of its sums are poor 
   three passes with two temporaries.
 
 Both are plain loops here, each output row written by one thread in a fixed order, so the result
-does not depend on the thread count.
+does not depend on the thread count. The reduced tier's precompute (:meth:`fem.quasistatic.ReducedModel.build`)
+reads its solves' blocks through two more: a sparse-dense product into a given array, each row
+summed as scipy's ``csr_matvecs`` sums it (the same bits, on every core), and a copy of a
+column-major block into a row-major one on every core.
 """
 
 from __future__ import annotations
@@ -42,3 +45,32 @@ def add_rows(out, rows, values):
         r = rows[j]
         for u in range(U):
             out[r, u] += values[j, u]
+
+
+@njit(parallel=True, cache=True)
+def sparse_product(indptr, indices, data, c, out):
+    """out = A @ c in place, every row of ``out`` written.
+
+    A (n, K) in CSR (indptr (n + 1,), indices, data); c (K, U) float64, row-major (a row of c is
+    read at once); out (n, U). Each row is summed from zero in the CSR's order, one product added
+    at a time, as scipy's ``A @ c`` (``csr_matvecs``) sums it: the same bits, on every core
+    instead of one, and into an array the caller keeps instead of a new one."""
+    n, U = out.shape
+    for i in prange(n):
+        for u in range(U):
+            out[i, u] = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            k = indices[p]
+            v = data[p]
+            for u in range(U):
+                out[i, u] += v * c[k, u]
+
+
+@njit(parallel=True, cache=True)
+def copy_rows(src, out):
+    """out[:] = src: src (n, U) in any order (a direct solver's column-major solution), out (n, U)
+    row-major, on every core (numpy's copy between the two orders runs on one)."""
+    n, U = out.shape
+    for i in prange(n):
+        for u in range(U):
+            out[i, u] = src[i, u]

@@ -266,19 +266,39 @@ class ReducedModel:
         at_free[free] = np.arange(len(free))
         v_free = at_free[vdofs]
         v_on = v_free >= 0
-        every_dof = np.ones(len(free), dtype=bool)
         C_patch = np.zeros((3 * M, 3 * M))  # P^T C P: the patches' mean displacements under their own loads
         block = 128
         n_cols = 3 * points.m
+        # One set of arrays for every block of columns, written in place: the right-hand sides and the
+        # solution in the solver's column order (Factorised.solve_into), the solution row-major for the
+        # products (they gather its rows), its stress rows and the points' and patches' displacements
+        # (W^T X, W_p^T X). Fresh arrays per block (the solver's output, its row-major copy, the rhs,
+        # the stress rows: about 100 MB each on the screw sensor) cost 5-6 s of page faults, zero fills
+        # and single-threaded copies in a 34 s loop on the shared machine; these cost 1.3-1.5 s. Every
+        # product runs on every core, each row summed from zero in scipy's order
+        # (field_kernels.sparse_product), so the values are scipy's, bit for bit.
+        n_free = len(free)
+        rhs_f, x_f = np.zeros((n_free, block), order="F"), np.empty((n_free, block), order="F")
+        x_rows, sx_rows = np.empty(n_free * block), np.empty(Sf.shape[0] * block)
+        wx_rows, wpx_rows = np.empty(WfT.shape[0] * block), np.empty(WpfT.shape[0] * block)
+
+        def rows_of(buffer: np.ndarray, n: int, b: int) -> np.ndarray:
+            return buffer[: n * b].reshape(n, b)  # a row-major (n, b) block at the buffer's start
+
+        t_loop = time.perf_counter()
         for s in range(0, n_cols, block):
             cs = col_order[s : s + block]
-            Xf = body.factor.solve(Wf[:, cs].toarray(order="F"))
-            WtX = WfT @ Xf
-            # the stress rows on both cores (scipy's product is single-threaded: a fifth of the precompute),
-            # each row's sum in scipy's order
-            SX = np.zeros((Sf.shape[0], len(cs)))
-            field_kernels.add_sparse_product(Sf.indptr, Sf.indices, Sf.data, Xf, every_dof, SX)
-            DX = np.zeros((len(vdofs), len(cs)))
+            b = len(cs)
+            B, Xcol = rhs_f[:, :b], x_f[:, :b]  # column-major (n_free, b) views
+            Wf[:, cs].toarray(out=B)  # (zeroes B first)
+            body.factor.solve_into(B, Xcol)
+            Xf = rows_of(x_rows, n_free, b)
+            field_kernels.copy_rows(Xcol, Xf)
+            WtX = rows_of(wx_rows, WfT.shape[0], b)
+            field_kernels.sparse_product(WfT.indptr, WfT.indices, WfT.data, Xf, WtX)
+            SX = rows_of(sx_rows, Sf.shape[0], b)
+            field_kernels.sparse_product(Sf.indptr, Sf.indices, Sf.data, Xf, SX)
+            DX = np.zeros((len(vdofs), b))
             DX[v_on] = Xf[v_free[v_on]]
             for r in np.unique(rod3[cs]):
                 on = rod3[cs] == r
@@ -292,9 +312,12 @@ class ReducedModel:
             Pt = Pb[:, touched].toarray()
             stress[:, touched] += SX @ Pt
             disp[:, touched] += DX @ Pt
-            C_patch[:, touched] += (WpfT @ Xf) @ Pt
+            WpX = rows_of(wpx_rows, WpfT.shape[0], b)
+            field_kernels.sparse_product(WpfT.indptr, WpfT.indices, WpfT.data, Xf, WpX)
+            C_patch[:, touched] += WpX @ Pt
             if progress is not None:
                 progress(min(s + block, n_cols), n_cols)
+        t_far = time.perf_counter()
         blocks = {r: 0.5 * (B + B.T) for r, B in blocks.items()}
         rods_local = sorted(local)
         own_s = {r: rows[0] for r, rows in local_rows.items()}
@@ -302,6 +325,7 @@ class ReducedModel:
         stress_basis, stress_coeff = far_field_basis(stress, rod, own_s)
         disp_basis, disp_coeff = far_field_basis(disp, rod, own_d)
         del stress, disp
+        t_gravity = time.perf_counter()
         xg = body.x_gravity
         return cls(X, area, rod, 0.5 * (C_patch + C_patch.T), stress_basis, stress_coeff, disp_basis, disp_coeff, (body.S @ xg), xg[vdofs], (Wp.T @ xg).reshape(M, 3),
                    body.weight_n(), body.lam, body.mu, points.X.copy(), points.area_m2.copy(), np.asarray(patches).copy(), point_rod.copy(),
@@ -309,7 +333,7 @@ class ReducedModel:
                    _concat([local_rows[r][0] for r in rods_local], int), _concat([local_rows[r][1] for r in rods_local], int),
                    _concat([local[r][0].ravel() for r in rods_local], np.float32), _concat([local[r][1].ravel() for r in rods_local], np.float32),
                    np.array([(r, len(local_rows[r][0]), len(local_rows[r][1])) for r in rods_local], dtype=int).reshape(-1, 3), body.element,
-                   {"precompute": time.perf_counter() - t0})
+                   {"precompute": time.perf_counter() - t0, "responses": t_far - t_loop, "far_field": t_gravity - t_far})
 
 
 # The patches' responses away from their own rod are of low rank: a rod's tip loads reach its base, and
@@ -506,7 +530,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         t_f = time.perf_counter()
         reduced.far_field_rows("stress"), reduced.far_field_rows("displacement")  # made once per model
         timings["precompute_far_field_rows"] = time.perf_counter() - t_f
-        timings["precompute"] = sum(reduced.seconds.values()) + timings["precompute_far_field_rows"]
+        # the build's parts ("responses", "far_field") are inside its "precompute"
+        timings["precompute"] = sum(v for k, v in reduced.seconds.items() if k in ("precompute", "body")) + timings["precompute_far_field_rows"]
         if second_order:
             t_k = time.perf_counter()
             sections = _rod_sections(scene, mesh, rod, setup.tip_z_m)

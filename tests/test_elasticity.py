@@ -7,7 +7,8 @@ import pytest
 import skfem
 from skfem import Functional
 
-from fem.elasticity import ELEMENTS, assemble, body_force, discretise, dof_components, element_lame, solve_static, split
+from fem.elasticity import (ELEMENTS, _per_qp, assemble, body_force, deviatoric_form, deviatoric_matrix, discretise, dof_components, element_lame,
+                            solve_static, split)
 from fem.materials import material_model
 from fem.materials import linear_elastic as le
 from fem.materials import neo_hookean as nh
@@ -125,6 +126,21 @@ def test_patch_test_reproduces_linear_fields(element, nu):
     assert np.abs(u - exact).max() <= 1e-10 * np.abs(exact).max()
     if p is not None:
         np.testing.assert_allclose(p, lam * np.trace(a), rtol=1e-10)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_deviatoric_matrix_is_scikit_fems_bit_for_bit(threads):
+    """The mixed form's displacement block made from each function's symmetric gradient once, on the
+    pairs i <= j, equals scikit-fem's assembly of the form in every bit (curved P2, mu per element),
+    and is symmetric (to the round-off of summing an entry's elements in another order than its mirror's)."""
+    rng = np.random.default_rng(5)
+    d = discretise(_distorted_cube(2, rng, "P2P1"), "P2P1")
+    mu_q = _per_qp(rng.uniform(1e5, 1e6, d.u.mesh.nelements), d.u)
+    ours = deviatoric_matrix(d.u, mu_q, threads=threads)
+    theirs = skfem.asm(deviatoric_form, d.u, mu=mu_q)
+    for name in ("indptr", "indices", "data"):
+        assert getattr(ours, name).tobytes() == getattr(theirs, name).tobytes(), name
+    assert abs(ours - ours.T).max() <= 1e-14 * abs(ours).max()
 
 
 # Manufactured solution on the unit cube: u = (sin pi y, sin pi z, sin pi x). It is divergence-free,

@@ -65,3 +65,30 @@ def test_empty_and_full_inputs(n_used):
     np.testing.assert_allclose(out, expect, rtol=1e-5, atol=1e-5)
     field_kernels.add_rows(out, np.zeros(0, dtype=np.int64), np.zeros((0, out.shape[1]), np.float32))
     np.testing.assert_allclose(out, expect, rtol=1e-5, atol=1e-5)
+
+
+def test_the_sparse_product_into_an_array_is_scipys_bit_for_bit():
+    """sparse_product sums each row as scipy's csr_matvecs does (the reduced tier's precompute relies
+    on it: its model stays byte-identical), overwrites what the output held, and does not depend on
+    the thread count; copy_rows copies a column-major block into a row-major one."""
+    rng = np.random.default_rng(4)
+    A = sp.random(3000, 800, density=0.02, format="csr", random_state=rng)
+    A.data = rng.standard_normal(A.nnz)  # signs and magnitudes that make the summation order matter
+    c = rng.standard_normal((800, 37))
+    expect = A @ c
+    results = []
+    threads = numba.get_num_threads()
+    try:
+        for t in (1, threads):
+            numba.set_num_threads(t)
+            out = rng.standard_normal((3000, 37))  # stale values: overwritten
+            field_kernels.sparse_product(A.indptr, A.indices, A.data, c, out)
+            results.append(out)
+    finally:
+        numba.set_num_threads(threads)
+    for out in results:
+        assert out.tobytes() == expect.tobytes()
+    src = np.asfortranarray(c)
+    out = np.empty_like(c)
+    field_kernels.copy_rows(src, out)
+    assert out.flags.c_contiguous and np.array_equal(out, c)

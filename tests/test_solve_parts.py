@@ -45,6 +45,25 @@ def test_factorised_solve_matches_spsolve(backend, element):
 
 
 @pytest.mark.parametrize("backend", available_backends())
+def test_solving_into_a_kept_block_gives_the_solves_bits(backend):
+    """solve_into (the reduced tier's precompute: column-major blocks it keeps) writes what solve
+    returns, bit for bit, whatever the block held before, and refuses a row-major or mismatched one."""
+    d = _cube("P2P1")
+    K = assemble(d, LAM, MU)
+    free = np.setdiff1d(np.arange(d.n_dofs), np.flatnonzero(d.u.doflocs[2][: d.n_u] < 1e-9))
+    f = factorise(K[free][:, free], definite=False, backend=backend)
+    rng = np.random.default_rng(3)
+    B = np.asfortranarray(rng.normal(size=(len(free), 5)))
+    out = np.asfortranarray(rng.normal(size=B.shape))  # stale values: overwritten, never read
+    assert f.solve_into(B, out) is out
+    assert out.tobytes(order="F") == np.asfortranarray(f.solve(B)).tobytes(order="F")
+    with pytest.raises(ValueError, match="column-major"):
+        f.solve_into(np.ascontiguousarray(B), out)
+    with pytest.raises(ValueError, match="must both be"):
+        f.solve_into(B, out[:, :4])
+
+
+@pytest.mark.parametrize("backend", available_backends())
 def test_factorised_general_matrix_matches_spsolve(backend):
     """A non-symmetric matrix (the frictional tangent's kind: P2P1 stiffness plus a non-symmetric
     sparse coupling) through the general LU (symmetric=False)."""
