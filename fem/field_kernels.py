@@ -51,8 +51,9 @@ def add_rows(out, rows, values):
 def sparse_product(indptr, indices, data, c, out):
     """out = A @ c in place, every row of ``out`` written.
 
-    A (n, K) in CSR (indptr (n + 1,), indices, data); c (K, U) float64, row-major (a row of c is
-    read at once); out (n, U). Each row is summed from zero in the CSR's order, one product added
+    A (n, K) in CSR (indptr (n + 1,), indices, data); c (K, U) float64 (float32 for the render's
+    transport matrices, :data:`mlsim.render.kernels.csr_times_dense`), row-major (a row of c is read
+    at once); out (n, U). Each row is summed from zero in the CSR's order, one product added
     at a time, as scipy's ``A @ c`` (``csr_matvecs``) sums it: the same bits, on every core
     instead of one, and into an array the caller keeps instead of a new one."""
     n, U = out.shape

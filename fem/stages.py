@@ -129,7 +129,8 @@ def _solve_run(scene: Scene, inputs: dict, ctx: "RunContext"):
 
 # The linear tier's assembled and factorised body of the last sensor solved in this process: the loads
 # of a sweep's variant and the angles of a direction study share it (16.6 s of a 30 s press on the
-# default sensor: 13.2 s assembly, 3.1 s factorisation). One entry: a factorisation is hundreds of MB.
+# default sensor: 13.2 s assembly, 3.1 s factorisation, before 7f04b7c cut the assembly about 3x). One entry:
+# a factorisation is hundreds of MB.
 _LAST_BODY: list = [None, None]
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from fem.field_kernels import sparse_product
+
 #: a sample on a triangle's edge (barycentric weight down to -EDGE_EPS) belongs to it: a sample on
 #: the edge two triangles share is never lost between them
 EDGE_EPS = 1e-7
@@ -178,17 +180,10 @@ def rasterise_direct(uv, depth, faces, value, per_side, orientation, height_px, 
     return images
 
 
-@njit(parallel=True, cache=True)
-def csr_times_dense(indptr, indices, data, dense, out):
-    """out (P, F) = A @ dense for A (P, N) in CSR (indptr (P + 1,), indices, data) and dense (N, F),
-    in place (out starts at zero). One row per thread step: the order of the sums is fixed."""
-    n_cols = out.shape[1]
-    for i in prange(out.shape[0]):
-        for p in range(indptr[i], indptr[i + 1]):
-            a = data[p]
-            j = indices[p]
-            for f in range(n_cols):
-                out[i, f] += a * dense[j, f]
+# out (P, F) = A @ dense for A (P, N) in CSR and dense (N, F), in place, one row per thread step (the order
+# of the sums fixed): the transport matrices' batched product, the same kernel as the reduced tier's
+# precompute (compiled here for float32)
+csr_times_dense = sparse_product
 
 
 @njit(parallel=True, cache=True)
