@@ -684,14 +684,14 @@ class CondensedBody:
     iteration is damped rather than divergent; a tangent of a pressed state is not (rods pressed past
     their free Euler load have an indefinite tangent without the contact that holds them, and when
     the probe lifts they stiffen past it: both seen on the demo). A step it does not converge within
-    ``CONDENSED_SLOW_AFTER`` iterations is tried once more on the body linearised at the step's start,
-    then goes to the penalty Newton, then to halves (:meth:`_Problem.path`). Default demo, same hour:
-    the first release step took 40 s that way against 107 s by the penalty Newton; the second release
-    step still needs the penalty Newton (97.5 s against 78 s: the extra linearisation's cost), and
-    the episode 347 s against 413 s. Halving first with the kept linearisation was slower (the first
-    release step ran past 5 minutes). Z costs 3 m solves (the default sensor: 1095 columns, about 9 s, once).
-    Default demo: the pressing, holding, sliding and twisting steps (2-16) take 5-24 iterations,
-    3-12 s each, against 2.5-9.5 min for the first pressing step with the penalty Newton alone.
+    ``CONDENSED_SLOW_AFTER`` iterations is retried (:meth:`_Problem.path`): following its own iterates and
+    on the body linearised where it came closest (quasi-static steps in that order, dynamic ones in the
+    other), then by the penalty Newton, then in halves. Halving first with the kept linearisation was
+    slower (a release step of the demo ran past 5 minutes). Z costs 3 m solves (the default sensor: about
+    1100 columns, about 9 s, once). Default demo at solve stage 16 (quiet 2-core machine): 1-14
+    iterations and 0.3-6.5 s a step, the snap-back release steps 30 and 25 iterations (25 s and 14 s),
+    98 s for the 22 steps, against 2.5-9.5 min for the first pressing step with the penalty Newton alone
+    (docs/stages/solve.md has each stage's figures).
     """
 
     def __init__(self, problem: "_Problem", x: np.ndarray):
