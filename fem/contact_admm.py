@@ -644,6 +644,10 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
     from fem.indenters import gap_normal, rigid_motion
 
     kin = warm.kinematics
+    # the rounds' tolerance and mixing: the kinematics' own where it states them (fem.rod_exact's held rods:
+    # under-relaxed, tighter), else Anderson's rule at SECOND_ORDER_RTOL
+    round_rtol = getattr(kin, "round_rtol", SECOND_ORDER_RTOL)
+    relaxation = getattr(kin, "round_relaxation", None)
     if kin is None:
         u_prev = state.u
     else:
@@ -667,7 +671,7 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
     f, z, rung = warm.f, warm.z, warm.rung
     info = AdmmInfo()
     u = u_star
-    for lin in range(max_linearisations if kin is None else max(max_linearisations, SECOND_ORDER_LINEARISATIONS)):
+    for lin in range(max_linearisations if kin is None else max(max_linearisations, getattr(kin, "max_rounds", SECOND_ORDER_LINEARISATIONS))):
         gap, n = gap_normal(shape, pose, X + u_star)
         P_old_t = state.f_t - np.einsum("ij,ij->i", state.f_t, n)[:, None] * n  # the last tangential force in today's plane
         moved = u_prev + drag
@@ -698,17 +702,22 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
             # per point it would sit at the ADMM tolerance's noise)
             u_full = u + hidden
             moved_h = kin.resultant_change(f - f_lin)
-            h_of_f, load = _hidden(kin, G, f)
+            h_of_f, load = _hidden(kin, G, f, _robin_hold(kin, G, f, n, hidden, load))
             # Anderson mixing of depth 1 on the fixed point h = h(f(h)) (Walker & Ni 2011): the plain
             # iteration contracts by only about 0.4 per round on the tiny scene's slide
             r = h_of_f - hidden
-            step = h_of_f
-            if mix is not None:
-                dr, dg = r - mix[0], h_of_f - mix[1]
-                denom = float(np.vdot(dr, dr))
-                if denom > 0.0:
-                    step = h_of_f - (float(np.vdot(r, dr)) / denom) * dg
-            mix = (r, h_of_f)
+            if relaxation is not None:
+                # under-relaxed: the held rods' rounds flip points between stick and slip, and Anderson's secant
+                # over those kinks diverged on the default demo's press (0.5 cycled between two stick patterns)
+                step = hidden + relaxation * r
+            else:
+                step = h_of_f
+                if mix is not None:
+                    dr, dg = r - mix[0], h_of_f - mix[1]
+                    denom = float(np.vdot(dr, dr))
+                    if denom > 0.0:
+                        step = h_of_f - (float(np.vdot(r, dr)) / denom) * dg
+                mix = (r, h_of_f)
             hidden_true, hidden = h_of_f, step
             u_next = u + hidden
         g_lin = gap + np.einsum("ij,ij->i", n, u_full - u_star)
@@ -719,7 +728,7 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
         # the force the linearisation misplaces, summed over the loaded points, against the total
         # normal force: a per-rod total error bound (one point's share can be larger on a curved rim)
         misplaced = float((np.abs(g_new - g_lin) / G.inv_k)[loaded].sum()) if loaded.any() else 0.0
-        if misplaced <= max(10.0 * rtol * float(np.abs(fn).sum()), f_floor_n) and moved_h <= max(SECOND_ORDER_RTOL * float(np.abs(fn).sum()), f_floor_n):
+        if misplaced <= max(10.0 * rtol * float(np.abs(fn).sum()), f_floor_n) and moved_h <= max(round_rtol * float(np.abs(fn).sum()), f_floor_n):
             break
     else:
         info.converged = info.linearised = False
@@ -735,8 +744,23 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
     return u, StepLaw(f, fn, f_t, touching, stick, extra), info
 
 
-def _hidden(kin, G: _Delassus, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The points' displacement beyond u_0 + E f at point forces f (m, 3): q(f) + E f_pd, and f_pd (m, 3) N."""
-    q, load = kin.q_and_load(f)
+def _hidden(kin, G: _Delassus, f: np.ndarray, hold=None) -> tuple[np.ndarray, np.ndarray]:
+    """The points' displacement beyond u_0 + E f at point forces f (m, 3): q(f) + E f_pd, and f_pd (m, 3) N
+    (``hold``: :func:`_robin_hold`'s, for kinematics that take it)."""
+    q, load = kin.q_and_load(f) if hold is None else kin.q_and_load(f, hold=hold)
     return (q + G.elastic(load) if kin.pdelta else q), load
 
+
+def _robin_hold(kin, G: _Delassus, f: np.ndarray, n: np.ndarray, hidden: np.ndarray, load: np.ndarray):
+    """The Robin coupling of geometrically exact rods (``kin.holds``; :meth:`fem.rod_exact.CosseratKinematics.solve_rods`):
+    (q_frozen, f_pd, K) with q_frozen = h - E f_pd the nonlinear part the round froze, f_pd its P-delta load
+    (m, 3) N and K (m, 3, 3) N/m the contact's penalty at each point that touches in this round's solution f
+    (m, 3) N, isotropic. (Along the normal it is the contact's own stiffness, which holds a pressed face flat;
+    across it, a slipping point's force does not follow its position, but at the rounds' fixed point the springs
+    carry nothing whatever their stiffness, and holding only the sticking points let the default demo's rods
+    buckle in their solves where their tips' points flipped to slip.) None for kinematics without the coupling."""
+    if not getattr(kin, "holds", False):
+        return None
+    touching = np.einsum("ij,ij->i", f, n) > 0.0
+    K = (touching / G.inv_k)[:, None, None] * np.eye(3)
+    return (hidden - G.elastic(load) if kin.pdelta else hidden), load, K

@@ -86,7 +86,7 @@ def _add_jtwj(J, w, scale, out, r0, c0):
 # --- energy, gradient and Hessian of one rod --------------------------------------------------------
 
 @njit(cache=True)
-def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, g, D, O):
+def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffness, anchor, g, D, O):
     """One rod: fills g (N, 6), D and O (N, 6, 6) (overwritten); returns (energy (J),
     the loads' work's size |F . (x_N - x_0)| + |sum_k f_k . (p_k - x_0)| (J): the trust region's
     round-off scale). Arithmetic as fem.cosserat_rod.gradient_and_hessian and energy."""
@@ -216,22 +216,42 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, g, D, 
     _rotation(q[n - 1, 0], q[n - 1, 1], q[n - 1, 2], q[n - 1, 3], R)
     for k in range(3):
         g[n - 1, k] -= R[0, k] * M[0] + R[1, k] * M[1] + R[2, k] * M[2]
-    # point loads: -f . ((1 - s) x_e + s x_{e+1} + R_e cay(psi_e) rho)
+    # point loads: -f . ((1 - s) x_e + s x_{e+1} + R_e cay(psi_e) rho), and a point's spring to its anchor,
+    # (p - a) . K (p - a) / 2: the dead force's terms with the spring's force f - K (p - a) in its place
+    # (a spring's second-order term is a dead force's), plus J^T K J
     work_pts = 0.0
     fb = np.empty(3)
+    pk = np.empty(3)
+    fe = np.empty(3)
+    A = np.empty((3, 3))
+    KA = np.empty((3, 3))
     for kk in range(seg.shape[0]):
         e = seg[kk]
         s = along[kk]
-        f0, f1, f2 = force[kk, 0], force[kk, 1], force[kk, 2]
         r0, r1, r2 = offset[kk, 0], offset[kk, 1], offset[kk, 2]
         _rotation(q[e, 0], q[e, 1], q[e, 2], q[e, 3], Rp)
+        sprung = False
+        for c in range(3):
+            pk[c] = (1.0 - s) * x[e, c] + s * x[e + 1, c] + Rp[c, 0] * r0 + Rp[c, 1] * r1 + Rp[c, 2] * r2
+            work_pts += force[kk, c] * (pk[c] - x[0, c])
+            for d in range(3):
+                if stiffness[kk, c, d] != 0.0:
+                    sprung = True
+        for c in range(3):
+            fe[c] = force[kk, c]
+        if sprung:
+            for c in range(3):
+                acc = 0.0
+                for d in range(3):
+                    acc += stiffness[kk, c, d] * (pk[d] - anchor[kk, d])
+                fe[c] -= acc
+                stored += 0.5 * (pk[c] - anchor[kk, c]) * acc
+        f0, f1, f2 = fe[0], fe[1], fe[2]
         for c in range(3):
             fb[c] = Rp[0, c] * f0 + Rp[1, c] * f1 + Rp[2, c] * f2  # R_e^T f
-            pc = (1.0 - s) * x[e, c] + s * x[e + 1, c] + Rp[c, 0] * r0 + Rp[c, 1] * r1 + Rp[c, 2] * r2
-            work_pts += force[kk, c] * (pc - x[0, c])
-            g[e, 3 + c] -= s * force[kk, c]
+            g[e, 3 + c] -= s * fe[c]
             if e >= 1:
-                g[e - 1, 3 + c] -= (1.0 - s) * force[kk, c]
+                g[e - 1, 3 + c] -= (1.0 - s) * fe[c]
         g[e, 0] -= r1 * fb[2] - r2 * fb[1]
         g[e, 1] -= r2 * fb[0] - r0 * fb[2]
         g[e, 2] -= r0 * fb[1] - r1 * fb[0]
@@ -241,17 +261,43 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, g, D, 
         for r in range(3):
             for c in range(3):
                 D[e, r, c] += -0.5 * (rv[r] * fb[c] + fb[r] * rv[c]) + (rf if r == c else 0.0)
+        if sprung:
+            # J^T K J, J = dp / d(psi_e, x_{e+1}) = [A, s I] with A = -R_e [rho]x, and (1 - s) I for x_e (block e - 1)
+            for i in range(3):
+                A[i, 0] = -(Rp[i, 1] * r2 - Rp[i, 2] * r1)
+                A[i, 1] = -(Rp[i, 2] * r0 - Rp[i, 0] * r2)
+                A[i, 2] = -(Rp[i, 0] * r1 - Rp[i, 1] * r0)
+            for i in range(3):
+                for j in range(3):
+                    acc = 0.0
+                    for k in range(3):
+                        acc += stiffness[kk, i, k] * A[k, j]
+                    KA[i, j] = acc
+            for i in range(3):
+                for j in range(3):
+                    acc = 0.0
+                    for k in range(3):
+                        acc += A[k, i] * KA[k, j]
+                    D[e, i, j] += acc
+                    D[e, i, 3 + j] += s * KA[j, i]
+                    D[e, 3 + i, j] += s * KA[i, j]
+                    D[e, 3 + i, 3 + j] += s * s * stiffness[kk, i, j]
+                    if e >= 1:
+                        D[e - 1, 3 + i, 3 + j] += (1.0 - s) * (1.0 - s) * stiffness[kk, i, j]
+                        O[e, 3 + i, j] += (1.0 - s) * KA[i, j]
+                        O[e, 3 + i, 3 + j] += (1.0 - s) * s * stiffness[kk, i, j]
     return stored - work_tip - work_pts, abs(work_tip) + abs(work_pts)
 
 
 @njit(cache=True)
-def evaluate(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force):
+def evaluate(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, stiffness, anchor):
     """The energy E (B,) J, gradient g (B, 6N) and Hessian blocks D, O (B, N, 6, 6) of a batch of B rods
     (fem.cosserat_rod.energy and gradient_and_hessian, block convention in the module docstring).
 
     x (B, N + 1, 3) m, q (B, N, 4), clamp (B, 4) unit quaternions; length m; S (3,) N, Bk (3,) N m^2
     (RodSection.S, .B); F (B, 3) N, M (B, 3) N m the dead tip force and moment; point loads seg (B, K)
-    int, along (B, K), offset (B, K, 3) m, force (B, K, 3) N (K = 0 for none; pad with zero forces), as
+    int, along (B, K), offset (B, K, 3) m, force (B, K, 3) N (K = 0 for none; pad with zero forces), and each
+    point's spring, stiffness (B, K, 3, 3) N/m (symmetric; zero for none) and anchor (B, K, 3) m, as
     :func:`flatten_problem` makes them."""
     nb, n = q.shape[0], q.shape[1]
     l = length / n
@@ -260,7 +306,8 @@ def evaluate(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force):
     D = np.empty((nb, n, 6, 6))
     O = np.empty((nb, n, 6, 6))
     for r in range(nb):
-        E[r], _ = _evaluate_rod(x[r], q[r], clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], g[r], D[r], O[r])
+        E[r], _ = _evaluate_rod(x[r], q[r], clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], stiffness[r], anchor[r],
+                                g[r], D[r], O[r])
     return E, g.reshape(nb, 6 * n), D, O
 
 
@@ -480,7 +527,7 @@ def _imbalance_rod(g, tol_f, tol_m):
 
 
 @njit(cache=True)
-def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, tol_f, tol_m, max_iterations, conservative,
+def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, stiffness, anchor, tol_f, tol_m, max_iterations, conservative,
                  max_turn):
     """fem.cosserat_rod._newton on each rod of a batch (arguments as :func:`evaluate`; tol_f (B,) N and
     tol_m (B,) N m its tolerances; max_turn rad, MAX_TURN_RAD) for as long as the rod's Hessian is positive
@@ -505,7 +552,7 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
     for r in range(nb):
         xr, qr = x[r], q[r]
         radius = max_turn
-        E, work = _evaluate_rod(xr, qr, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], g, D, O)
+        E, work = _evaluate_rod(xr, qr, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], stiffness[r], anchor[r], g, D, O)
         status[r] = FALLBACK
         for it in range(max_iterations + 1):
             if it == max_iterations:  # out of iterations: numpy's loop raises (or, after a fallback, retries)
@@ -563,7 +610,8 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, to
             t = 1.0
             for halving in range(21):
                 _update_rod(xr, qr, step, t, xt, qt)
-                Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], gt, Dt, Ot)
+                Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], stiffness[r],
+                                           anchor[r], gt, Dt, Ot)
                 if conservative or halving == 20 or _imbalance_rod(gt, tol_f[r], tol_m[r]) < i0:
                     break
                 t = 0.5 * t
@@ -598,13 +646,19 @@ def _owned(a, shape, dtype=float):
 
 def flatten_problem(state, section, clamp, F, M, loads, lead):
     """The batch as :func:`newton_batch` and :func:`evaluate` take it: (x, q, clamp, F, M, seg, along, offset,
-    force), every array broadcast to ``lead`` and flattened to B rods (copies: the kernels overwrite x, q)."""
+    force, stiffness, anchor), every array broadcast to ``lead`` and flattened to B rods (copies: the kernels
+    overwrite x, q); the points' springs zero where ``loads`` has none."""
     nrods = int(np.prod(lead, dtype=np.int64))
     n = state.q.shape[-2]
     k = 0 if loads is None else np.shape(loads.force_n)[-2]
     flat = (_owned(state.x, lead + (n + 1, 3)).reshape(nrods, n + 1, 3), _owned(state.q, lead + (n, 4)).reshape(nrods, n, 4),
             _owned(clamp, lead + (4,)).reshape(nrods, 4), _owned(F, lead + (3,)).reshape(nrods, 3), _owned(M, lead + (3,)).reshape(nrods, 3))
     if loads is None:
-        return flat + (np.zeros((nrods, 0), np.int64), np.zeros((nrods, 0)), np.zeros((nrods, 0, 3)), np.zeros((nrods, 0, 3)))
+        return flat + (np.zeros((nrods, 0), np.int64), np.zeros((nrods, 0)), np.zeros((nrods, 0, 3)), np.zeros((nrods, 0, 3)),
+                       np.zeros((nrods, 0, 3, 3)), np.zeros((nrods, 0, 3)))
+    if loads.stiffness_n_m is None:
+        springs = (np.zeros((nrods, k, 3, 3)), np.zeros((nrods, k, 3)))
+    else:
+        springs = (_owned(loads.stiffness_n_m, lead + (k, 3, 3)).reshape(nrods, k, 3, 3), _owned(loads.anchor_m, lead + (k, 3)).reshape(nrods, k, 3))
     return flat + (_owned(loads.segment, lead + (k,), np.int64).reshape(nrods, k), _owned(loads.along, lead + (k,)).reshape(nrods, k),
-                   _owned(loads.offset_m, lead + (k, 3)).reshape(nrods, k, 3), _owned(loads.force_n, lead + (k, 3)).reshape(nrods, k, 3))
+                   _owned(loads.offset_m, lead + (k, 3)).reshape(nrods, k, 3), _owned(loads.force_n, lead + (k, 3)).reshape(nrods, k, 3)) + springs

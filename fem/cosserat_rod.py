@@ -126,12 +126,43 @@ class PointLoads:
     s_k = ``along[k]`` of the way along its chord, offset by rho_k = ``offset_m[k]`` (m, in the segment's
     frame) from the axis; it carries the spatial force ``force_n[k]`` (N), fixed in direction and size
     (a dead load). All four may carry the rods' leading axes: segment, along (..., K); offset_m,
-    force_n (..., K, 3). A rod with fewer points pads with zero forces."""
+    force_n (..., K, 3). A rod with fewer points pads with zero forces.
+
+    Optionally each point is also held by a linear spring to a fixed point: stiffness_n_m (..., K, 3, 3)
+    N/m (symmetric positive semi-definite; zero for none) and anchor_m (..., K, 3) m, adding the energy
+    (p_k - a_k) . K_k (p_k - a_k) / 2, so that the point carries f_k - K_k (p_k - a_k). The rods' coupling
+    to the contact (:mod:`fem.rod_exact`) holds the loaded points by the contact's stiffness this way (a
+    Robin condition): a rod pressed past its free Euler load by a face that holds its tip stays up."""
 
     segment: np.ndarray
     along: np.ndarray
     offset_m: np.ndarray
     force_n: np.ndarray
+    stiffness_n_m: np.ndarray | None = None
+    anchor_m: np.ndarray | None = None
+
+    def scaled(self, factor: float) -> "PointLoads":
+        """The same points and springs with the dead forces times ``factor``."""
+        return PointLoads(self.segment, self.along, self.offset_m, self.force_n * factor, self.stiffness_n_m, self.anchor_m)
+
+    def take(self, rows) -> "PointLoads":
+        """The loads of the rods ``rows`` of a flat batch (B, K, ...)."""
+        springs = (None, None) if self.stiffness_n_m is None else (self.stiffness_n_m[rows], self.anchor_m[rows])
+        return PointLoads(self.segment[rows], self.along[rows], self.offset_m[rows], self.force_n[rows], *springs)
+
+    def carried(self, state: "RodState", positions: np.ndarray | None = None) -> np.ndarray:
+        """The forces (..., K, 3) N the points carry in ``state``: the dead force less the spring's pull."""
+        if self.stiffness_n_m is None:
+            return self.force_n
+        p = self.positions(state) if positions is None else positions
+        return self.force_n - np.einsum("...kij,...kj->...ki", self.stiffness_n_m, p - self.anchor_m)
+
+    def spring_energy(self, state: "RodState", positions: np.ndarray | None = None) -> np.ndarray:
+        """sum_k (p_k - a_k) . K_k (p_k - a_k) / 2 (...) J; zero without springs."""
+        if self.stiffness_n_m is None:
+            return np.zeros(np.shape(self.force_n)[:-2])
+        d = (self.positions(state) if positions is None else positions) - self.anchor_m
+        return 0.5 * np.einsum("...ki,...kij,...kj->...", d, self.stiffness_n_m, d)
 
     def positions(self, state: "RodState", R: np.ndarray | None = None) -> np.ndarray:
         """The points p (..., K, 3) m in ``state`` (R: its frames' rotations, if already made)."""
@@ -235,7 +266,8 @@ def energy(state: RodState, section: RodSection, clamp: np.ndarray, tip_force_n=
     stored = 0.5 * l * np.sum(sigma**2 * section.S, axis=(-2, -1)) + 0.5 * np.sum(_voronoi(n, l)[:, None] * kappa**2 * section.B, axis=(-2, -1))
     stored = stored - np.sum(np.asarray(tip_force_n, dtype=float) * (state.x[..., -1, :] - state.x[..., 0, :]), axis=-1)
     if loads is not None:
-        stored = stored - np.sum(loads.force_n * (loads.positions(state) - state.x[..., :1, :]), axis=(-2, -1))
+        p = loads.positions(state)
+        stored = stored - np.sum(loads.force_n * (p - state.x[..., :1, :]), axis=(-2, -1)) + loads.spring_energy(state, p)
     return stored
 
 
@@ -267,7 +299,9 @@ def gradient_and_hessian(state: RodState, section: RodSection, clamp: np.ndarray
     if loads is not None:
         # -f . ((1 - s) x_e + s x_{e+1} + R_e cay(psi_e) rho): x_{e+1} in block e, x_e in block e - 1 (the root's
         # share dropped), psi_e's first order -rho x (R_e^T f), its second -(R_e^T f) . (psi x (psi x rho)) / 2
-        f = loads.force_n
+        # a spring's force f - K (p - a) takes the dead force's place (its second-order term is a dead
+        # force's); its J^T K J is added to H below
+        f = loads.carried(state)
         e = np.broadcast_to(loads.segment, f.shape[:-1])
         s_k = np.broadcast_to(loads.along, e.shape)[..., None]
         rho = np.broadcast_to(loads.offset_m, f.shape)
@@ -317,6 +351,20 @@ def gradient_and_hessian(state: RodState, section: RodSection, clamp: np.ndarray
         load_k = -0.5 * (rho[..., :, None] * f_body[..., None, :] + f_body[..., :, None] * rho[..., None, :]) \
             + np.einsum("...k,...k->...", rho, f_body)[..., None, None] * eye
         np.add.at(D.reshape(-1, n, 6, 6), (batch, e, slice(0, 3), slice(0, 3)), load_k)
+        if loads.stiffness_n_m is not None:
+            # J^T K J: dp/dpsi_e = A = -R_e [rho]x, dp/dx_{e+1} = s I, dp/dx_e = (1 - s) I (block e - 1)
+            K = np.broadcast_to(loads.stiffness_n_m, f.shape + (3,))
+            A = -np.take_along_axis(R, e[..., None, None], axis=-3) @ _skew(rho)
+            KA = K @ A
+            Db, Ob = D.reshape(-1, n, 6, 6), O.reshape(-1, n, 6, 6)
+            s2 = s_k[..., None]
+            np.add.at(Db, (batch, e, slice(0, 3), slice(0, 3)), np.swapaxes(A, -1, -2) @ KA)
+            np.add.at(Db, (batch, e, slice(0, 3), slice(3, 6)), s2 * np.swapaxes(KA, -1, -2))
+            np.add.at(Db, (batch, e, slice(3, 6), slice(0, 3)), s2 * KA)
+            np.add.at(Db, (batch, e, slice(3, 6), slice(3, 6)), s2**2 * K)
+            np.add.at(Db, (batch[before], e[before] - 1, slice(3, 6), slice(3, 6)), ((1.0 - s2) ** 2 * K)[before])
+            np.add.at(Ob, (batch[before], e[before], slice(3, 6), slice(0, 3)), ((1.0 - s2) * KA)[before])
+            np.add.at(Ob, (batch[before], e[before], slice(3, 6), slice(3, 6)), ((1.0 - s2) * s2 * K)[before])
     H = np.zeros(lead + (n, n, 6, 6))
     idx = np.arange(n)
     H[..., idx, idx, :, :] = D
@@ -367,6 +415,8 @@ def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0)
         raise ValueError(f"tip_force_n = {F.tolist()}, tip_moment_n_m = {M.tolist()}: must be finite")
     if loads is not None and not (np.all(np.isfinite(loads.force_n)) and np.all(np.isfinite(loads.offset_m))):
         raise ValueError("loads: the point forces and offsets must be finite")
+    if loads is not None and loads.stiffness_n_m is not None and not (np.all(np.isfinite(loads.stiffness_n_m)) and np.all(np.isfinite(loads.anchor_m))):
+        raise ValueError("loads: the points' spring stiffnesses and anchors must be finite")
     if loads is not None and (np.any(np.asarray(loads.segment) < 0) or np.any(np.asarray(loads.segment) >= segments)
                               or np.any(np.asarray(loads.along) < 0.0) or np.any(np.asarray(loads.along) > 1.0)):
         raise ValueError(f"loads: segment must lie in 0..{segments - 1} and along in [0, 1]")
@@ -389,7 +439,7 @@ def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0)
     newton = _newton_compiled if compiled else _newton
     with contextlib.nullcontext() if compiled else threadpool_limits(1, user_api="blas"):
         for k in range(1, increments + 1):
-            part = None if loads is None else PointLoads(loads.segment, loads.along, loads.offset_m, loads.force_n * (k / increments))
+            part = None if loads is None else loads.scaled(k / increments)
             state = newton(state, section, clamp, F * k / increments, M * k / increments, tolerances, max_iterations,
                             f"load step {k}/{increments}", part)
     return state
@@ -405,14 +455,14 @@ def _newton_compiled(state: RodState, section: RodSection, clamp, F, M, toleranc
     lead = np.broadcast_shapes(np.shape(clamp)[:-1], np.shape(F)[:-1], np.shape(M)[:-1], state.q.shape[:-2],
                                np.shape(tolerances[0]), np.shape(tolerances[1]))
     n = state.q.shape[-2]
-    x, q, clamp_f, F_f, M_f, seg, along, offset, force = ck.flatten_problem(state, section, clamp, F, M, loads, lead)
+    x, q, clamp_f, F_f, M_f, seg, along, offset, force, stiffness, anchor = ck.flatten_problem(state, section, clamp, F, M, loads, lead)
     nrods = x.shape[0]
     tol_f, tol_m = ck._owned(tolerances[0], lead).reshape(nrods), ck._owned(tolerances[1], lead).reshape(nrods)
     status, _ = ck.newton_batch(x, q, clamp_f, float(section.length_m), section.S, section.B, F_f, M_f, seg, along, offset, force,
-                                tol_f, tol_m, int(max_iterations), not np.any(M_f), MAX_TURN_RAD)
+                                stiffness, anchor, tol_f, tol_m, int(max_iterations), not np.any(M_f), MAX_TURN_RAD)
     rest = np.flatnonzero(status != ck.CONVERGED)
     if rest.size:
-        part = None if loads is None else PointLoads(seg[rest], along[rest], offset[rest], force[rest])
+        part = None if loads is None else PointLoads(seg, along, offset, force, stiffness, anchor).take(rest)
         with threadpool_limits(1, user_api="blas"):  # small matrices: BLAS threads only fight each other
             done = _newton(RodState(x[rest], q[rest]), section, clamp_f[rest], F_f[rest], M_f[rest], (tol_f[rest], tol_m[rest]),
                            max_iterations, where, part)

@@ -594,13 +594,15 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     worst_bend = [0.0, -1]  # the largest bending_ratio and its step
     n_rods = int(mesh.tet_rod.max()) + 1
     rod_height = scene.sensor.rod.height_mm * 1e-3
-    # both kinematics refuse a rod past buckling_limit x its free Euler load. Second order's P-delta runs away
-    # there; the Cosserat rods take their contact forces as dead loads between the contact's rounds, so a rod
-    # past its free Euler load buckles sideways in its own solve whatever holds its tip (seen on the default
-    # demo's flat punch, rods at 1.1 x: the rounds diverged and the normal force fell from 18.4 N to 2.8 N)
-    euler_n = _euler_load_n(scene) if second_order else None
+    # second order refuses a rod past buckling_limit x its free Euler load: its P-delta runs away there. The
+    # Cosserat rods are held in their solve by the contact's stiffness (fem.rod_exact, the Robin coupling) and
+    # follow a rod past it; under dead loads between rounds (CosseratKinematics.holds False) a rod past its free
+    # Euler load buckled sideways whatever held its tip (the default demo's flat punch, rods at 1.18 x: the
+    # rounds diverged and the normal force fell from 18.4 N to 2.8 N), and they are refused as second order's
+    held = exact and kinematics is not None and kinematics.holds
+    euler_n = _euler_load_n(scene) if second_order and not held else None
     rod_model = "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)"
-    if exact and kinematics is not None:
+    if exact and kinematics is not None and not held:
         # every round of the contact loop, before the rods are solved: the rounds' fixed point diverges past the
         # limit (to an answer with little force, which the check after the step would pass)
         kinematics.guard = lambda f: _check_buckling(f, rod, n_rods, euler_n, settings.buckling_limit, "a contact round", settings.tier, rod_model)
@@ -723,9 +725,11 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 f"iterations with a force residual of {worst['residual_n']:.3g} N ({worst['ratio']:.3g} x its tolerance): "
                 "raise fidelity.solve.contact_max_iterations for a tighter answer")
         if worst["unlinearised"] and log is not None:
-            bound = contact_admm.SECOND_ORDER_LINEARISATIONS if second_order else contact_admm.MAX_LINEARISATIONS
-            log(f"warning: in steps {worst['unlinearised']} the indenter's gap curves more than "
-                f"{bound} linearisations follow (the largest gap error is reported per step); "
+            bound = (getattr(kinematics, "max_rounds", contact_admm.SECOND_ORDER_LINEARISATIONS) if second_order
+                     else contact_admm.MAX_LINEARISATIONS)
+            why = (f"the rods' rounds (their kinematics' fixed point) or the indenter's gap did not settle in {bound} linearisations"
+                   if second_order else f"the indenter's gap curves more than {bound} linearisations follow")
+            log(f"warning: in steps {worst['unlinearised']} {why} (the largest gap error is reported per step); "
                 "use more fidelity.solve.substeps")
 
     t0 = time.perf_counter()

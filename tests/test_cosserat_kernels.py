@@ -51,16 +51,20 @@ def _assemble(D, O):
     return np.swapaxes(H, 2, 3).reshape(nb, 6 * n, 6 * n)
 
 
-@pytest.mark.parametrize("with_loads", [False, True])
+@pytest.mark.parametrize("with_loads", [False, True, "springs"])
 def test_kernel_energy_gradient_and_hessian_are_numpys(with_loads):
-    """Bent, twisted, stretched rods (4 clamps, tip forces and moments, 7 point loads each): E, g and H
-    equal fem.cosserat_rod.energy and gradient_and_hessian to 1e-10 of their size."""
+    """Bent, twisted, stretched rods (4 clamps, tip forces and moments, 7 point loads each, held by springs
+    to anchors or not): E, g and H equal fem.cosserat_rod.energy and gradient_and_hessian to 1e-10 of their size."""
     rng = np.random.default_rng(5)
     n, rods = 6, 4
     clamps = _clamps(rng, rods)
     state = _bent(STUBBY, n, clamps, rng)
     F, M = 0.01 * rng.standard_normal((rods, 3)), 1e-4 * rng.standard_normal((rods, 3))
     loads = _loads(n, rods, 7, rng, 0.02) if with_loads else None
+    if with_loads == "springs":
+        a = rng.standard_normal((rods, 7, 3, 3))
+        loads = cr.PointLoads(loads.segment, loads.along, loads.offset_m, loads.force_n, 20.0 * a @ np.swapaxes(a, -1, -2),
+                              loads.positions(state) + 1e-3 * rng.standard_normal((rods, 7, 3)))
     g_np, H_np = cr.gradient_and_hessian(state, STUBBY, clamps, F, M, loads=loads)
     E_np = cr.energy(state, STUBBY, clamps, F, loads)
     args = ck.flatten_problem(state, STUBBY, clamps, F, M, loads, (rods,))

@@ -248,3 +248,58 @@ def test_point_loads_on_a_batch_are_each_rod_alone():
     for k in range(3):
         alone = cr.solve_static(SLENDER, n, loads=loads[k], increments=2)
         np.testing.assert_allclose(together.x[k], alone.x, rtol=0, atol=1e-7 * LENGTH_M)
+
+
+# --- points held by springs (the Robin coupling of fem.rod_exact) --------------------------------------
+
+def _springs(rng, k: int, stiffness_n_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """k random symmetric positive semi-definite 3 x 3 stiffnesses (rank 1 to 3) of size ~stiffness_n_m."""
+    a = rng.standard_normal((k, 3, 3)) * (rng.uniform(size=(k, 1, 3)) > 0.3)
+    return stiffness_n_m * a @ np.swapaxes(a, -1, -2), rng.standard_normal((k, 3))
+
+
+def test_springs_gradient_and_hessian_are_the_energys_derivatives():
+    """Points held by springs to anchors (with dead forces, on offsets of several segments): central
+    differences of the energy give g and H, J^T K J and the spring force's load stiffness included."""
+    rng = np.random.default_rng(17)
+    section = cr.RodSection.circular(0.01, 1e-3, 1e6, 0.45)
+    n = 5
+    state = _additive(cr.straight_rod(section, n), 0.3 * rng.standard_normal(6 * n) * np.tile([1, 1, 1, 1e-3, 1e-3, 1e-3], n))
+    base = _some_loads(n, rng)
+    K, a = _springs(rng, 4, 5.0)
+    anchor = base.positions(state) + 1e-3 * a
+    loads = cr.PointLoads(base.segment, base.along, base.offset_m, base.force_n, K, anchor)
+    _assert_exact_derivatives(state, n, cr.gradient_and_hessian(state, section, CLAMP, loads=loads),
+                              lambda s_: cr.energy(s_, section, CLAMP, loads=loads))
+
+
+def test_a_spring_anchored_at_the_answer_changes_nothing():
+    """The Robin coupling's fixed point: a rod bent far by dead point loads, then solved again under the same
+    loads with each point held by a stiff spring anchored where it sat, from the straight rod: the same
+    answer (the springs carry nothing there), to 1e-7 of the length."""
+    n = 12
+    force = np.array([[1.5, -0.5, -0.8], [0.3, 0.2, 0.0]]) * EI / LENGTH_M**2
+    segment, along, offset = np.array([n - 1, 6]), np.array([1.0, 0.5]), np.array([[3e-4, 0.0, 0.0], [0.0, 2e-4, 0.0]])
+    dead = cr.PointLoads(segment, along, offset, force)
+    bent = cr.solve_static(SLENDER, n, loads=dead, increments=4)
+    K = 1e3 * EI / LENGTH_M**3 * np.broadcast_to(np.eye(3), (2, 3, 3))
+    held = cr.solve_static(SLENDER, n, loads=cr.PointLoads(segment, along, offset, force, K, dead.positions(bent)), increments=4)
+    assert np.linalg.norm(bent.x[-1] - bent.x[0] - [0, 0, LENGTH_M]) > 0.3 * LENGTH_M  # bent far
+    np.testing.assert_allclose(held.x, bent.x, rtol=0, atol=1e-7 * LENGTH_M)
+
+
+def test_a_column_past_its_free_euler_load_stays_up_when_its_tip_is_held():
+    """A column pressed at 1.5 x its free (clamped-free) Euler load P_E = pi^2 EI / 4 L^2 buckles under the dead
+    load alone; with its tip held sideways by a spring of 1e3 x its bending stiffness 3 EI / L^3 (a face that
+    holds the tip by friction: clamped-pinned, 8.2 P_E) it stays straight and shortens by P L / E A."""
+    n = 12
+    load = 1.5 * math.pi**2 * EI / (4 * LENGTH_M**2)
+    tip = cr.PointLoads(np.array([n - 1]), np.array([1.0]), np.zeros((1, 3)), np.array([[0.0, 0.0, -load]]))
+    imperfect = cr.solve_static(SLENDER, n, tip_force_n=(1e-4 * load, 0.0, 0.0), increments=1)  # a sideways nudge off the saddle
+    free = cr.solve_static(SLENDER, n, loads=tip, start=imperfect)
+    assert abs(free.x[-1, 0]) > 0.3 * LENGTH_M
+    K = np.diag([1e3 * 3 * EI / LENGTH_M**3] * 2 + [0.0])[None]
+    held = cr.solve_static(SLENDER, n, loads=cr.PointLoads(tip.segment, tip.along, tip.offset_m, tip.force_n, K, np.array([[0.0, 0.0, LENGTH_M]])),
+                           start=imperfect)
+    assert abs(held.x[-1, 0]) < 1e-6 * LENGTH_M
+    np.testing.assert_allclose(held.x[-1, 2], LENGTH_M * (1.0 - load / SLENDER.axial_n), rtol=1e-9)
