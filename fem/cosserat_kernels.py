@@ -86,7 +86,7 @@ def _add_jtwj(J, w, scale, out, r0, c0):
 # --- energy, gradient and Hessian of one rod --------------------------------------------------------
 
 @njit(cache=True)
-def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffness, anchor, g, D, O):
+def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffness, anchor, axial, g, D, O):
     """One rod: fills g (N, 6), D and O (N, 6, 6) (overwritten); returns (energy (J),
     the loads' work's size |F . (x_N - x_0)| + |sum_k f_k . (p_k - x_0)| (J): the trust region's
     round-off scale). Arithmetic as fem.cosserat_rod.gradient_and_hessian and energy."""
@@ -120,6 +120,14 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffn
             sig = b[i] - (1.0 if i == 2 else 0.0)
             nm[i] = sig * S[i]
             stored += 0.5 * l * sig * sig * S[i]
+        lS[2] = l * S[2]
+        if axial == 1:  # neo-Hookean (fem.cosserat_rod.axial_force): (E A / 3) (lambda - lambda^-2), its tangent and energy
+            lam = b[2]
+            mu_a = S[2] / 3.0
+            # a segment turned inside out (lambda <= 0) has no energy of its own: infinite, so a step there is refused
+            stored += (l * mu_a * (0.5 * lam * lam + 1.0 / lam - 1.5) if lam > 0.0 else np.inf) - 0.5 * l * (lam - 1.0) * (lam - 1.0) * S[2]
+            nm[2] = mu_a * (lam - 1.0 / (lam * lam))
+            lS[2] = l * mu_a * (1.0 + 2.0 / (lam * lam * lam))
         for i in range(3):
             fi = R[i, 0] * nm[0] + R[i, 1] * nm[1] + R[i, 2] * nm[2]  # the spatial section force
             g[e, 3 + i] += fi
@@ -290,7 +298,7 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffn
 
 
 @njit(cache=True)
-def evaluate(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, stiffness, anchor):
+def evaluate(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, stiffness, anchor, axial=0):
     """The energy E (B,) J, gradient g (B, 6N) and Hessian blocks D, O (B, N, 6, 6) of a batch of B rods
     (fem.cosserat_rod.energy and gradient_and_hessian, block convention in the module docstring).
 
@@ -298,7 +306,8 @@ def evaluate(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, stiffn
     (RodSection.S, .B); F (B, 3) N, M (B, 3) N m the dead tip force and moment; point loads seg (B, K)
     int, along (B, K), offset (B, K, 3) m, force (B, K, 3) N (K = 0 for none; pad with zero forces), and each
     point's spring, stiffness (B, K, 3, 3) N/m (symmetric; zero for none) and anchor (B, K, 3) m, as
-    :func:`flatten_problem` makes them."""
+    :func:`flatten_problem` makes them; axial the section's axial law (RodSection.axial_code: 0 linear,
+    1 neo-Hookean)."""
     nb, n = q.shape[0], q.shape[1]
     l = length / n
     E = np.empty(nb)
@@ -307,7 +316,7 @@ def evaluate(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, stiffn
     O = np.empty((nb, n, 6, 6))
     for r in range(nb):
         E[r], _ = _evaluate_rod(x[r], q[r], clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], stiffness[r], anchor[r],
-                                g[r], D[r], O[r])
+                                axial, g[r], D[r], O[r])
     return E, g.reshape(nb, 6 * n), D, O
 
 
@@ -528,7 +537,7 @@ def _imbalance_rod(g, tol_f, tol_m):
 
 @njit(cache=True)
 def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, stiffness, anchor, tol_f, tol_m, max_iterations, conservative,
-                 max_turn):
+                 max_turn, axial=0):
     """fem.cosserat_rod._newton on each rod of a batch (arguments as :func:`evaluate`; tol_f (B,) N and
     tol_m (B,) N m its tolerances; max_turn rad, MAX_TURN_RAD) for as long as the rod's Hessian is positive
     definite (the module docstring). Overwrites x and q with the rods' last accepted states; returns status (B,)
@@ -552,7 +561,7 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, st
     for r in range(nb):
         xr, qr = x[r], q[r]
         radius = max_turn
-        E, work = _evaluate_rod(xr, qr, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], stiffness[r], anchor[r], g, D, O)
+        E, work = _evaluate_rod(xr, qr, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], stiffness[r], anchor[r], axial, g, D, O)
         status[r] = FALLBACK
         for it in range(max_iterations + 1):
             if it == max_iterations:  # out of iterations: numpy's loop raises (or, after a fallback, retries)
@@ -611,7 +620,7 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, st
             for halving in range(21):
                 _update_rod(xr, qr, step, t, xt, qt)
                 Et, work_t = _evaluate_rod(xt, qt, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], stiffness[r],
-                                           anchor[r], gt, Dt, Ot)
+                                           anchor[r], axial, gt, Dt, Ot)
                 if conservative or halving == 20 or _imbalance_rod(gt, tol_f[r], tol_m[r]) < i0:
                     break
                 t = 0.5 * t

@@ -51,7 +51,7 @@ def _assemble(D, O):
     return np.swapaxes(H, 2, 3).reshape(nb, 6 * n, 6 * n)
 
 
-@pytest.mark.parametrize("with_loads", [False, True, "springs"])
+@pytest.mark.parametrize("with_loads", [False, True, "springs", "neo_hookean"])
 def test_kernel_energy_gradient_and_hessian_are_numpys(with_loads):
     """Bent, twisted, stretched rods (4 clamps, tip forces and moments, 7 point loads each, held by springs
     to anchors or not): E, g and H equal fem.cosserat_rod.energy and gradient_and_hessian to 1e-10 of their size."""
@@ -65,10 +65,12 @@ def test_kernel_energy_gradient_and_hessian_are_numpys(with_loads):
         a = rng.standard_normal((rods, 7, 3, 3))
         loads = cr.PointLoads(loads.segment, loads.along, loads.offset_m, loads.force_n, 20.0 * a @ np.swapaxes(a, -1, -2),
                               loads.positions(state) + 1e-3 * rng.standard_normal((rods, 7, 3)))
-    g_np, H_np = cr.gradient_and_hessian(state, STUBBY, clamps, F, M, loads=loads)
-    E_np = cr.energy(state, STUBBY, clamps, F, loads)
-    args = ck.flatten_problem(state, STUBBY, clamps, F, M, loads, (rods,))
-    E, g, D, O = ck.evaluate(*args[:3], STUBBY.length_m, STUBBY.S, STUBBY.B, *args[3:])
+    section = STUBBY if with_loads != "neo_hookean" else cr.RodSection(STUBBY.length_m, STUBBY.axial_n, STUBBY.shear_n, STUBBY.bending_n_m2,
+                                                                       STUBBY.torsion_n_m2, "neo_hookean")
+    g_np, H_np = cr.gradient_and_hessian(state, section, clamps, F, M, loads=loads)
+    E_np = cr.energy(state, section, clamps, F, loads)
+    args = ck.flatten_problem(state, section, clamps, F, M, loads, (rods,))
+    E, g, D, O = ck.evaluate(*args[:3], section.length_m, section.S, section.B, *args[3:], section.axial_code)
     np.testing.assert_allclose(E, E_np, rtol=1e-10, atol=1e-10 * np.abs(E_np).max())
     np.testing.assert_allclose(g, g_np, rtol=0, atol=1e-10 * np.abs(g_np).max())
     np.testing.assert_allclose(_assemble(D, O), H_np, rtol=0, atol=1e-10 * np.abs(H_np).max())

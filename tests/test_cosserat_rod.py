@@ -303,3 +303,27 @@ def test_a_column_past_its_free_euler_load_stays_up_when_its_tip_is_held():
                            start=imperfect)
     assert abs(held.x[-1, 0]) < 1e-6 * LENGTH_M
     np.testing.assert_allclose(held.x[-1, 2], LENGTH_M * (1.0 - load / SLENDER.axial_n), rtol=1e-9)
+
+
+# --- the neo-Hookean axial law ------------------------------------------------------------------------
+
+def test_neo_hookean_axial_law_derivatives_and_the_bar_in_compression():
+    """RodSection(axial_law="neo_hookean"): central differences of the energy give g and H at a bent, stretched
+    state; a bar pressed by P shortens to the stretch of (E A / 3) (lambda - lambda^-2) = -P (here lambda = 0.85,
+    where the linear law's 1 - P / E A is 0.822), to 1e-8 of the length; the law is the linear one at small strain."""
+    rng = np.random.default_rng(23)
+    base = cr.RodSection.circular(0.01, 1e-3, 1e6, 0.45)
+    neo = cr.RodSection(base.length_m, base.axial_n, base.shear_n, base.bending_n_m2, base.torsion_n_m2, "neo_hookean")
+    n = 5
+    state = _additive(cr.straight_rod(neo, n), 0.3 * rng.standard_normal(6 * n) * np.tile([1, 1, 1, 1e-3, 1e-3, 1e-3], n))
+    force = np.array([0.01, -0.02, -0.05])
+    _assert_exact_derivatives(state, n, cr.gradient_and_hessian(state, neo, CLAMP, force), lambda s_: cr.energy(s_, neo, CLAMP, force))
+    lam = 0.85
+    P = neo.axial_n / 3.0 * (lam**-2 - lam)
+    stiff = cr.RodSection(neo.length_m, neo.axial_n, neo.shear_n, (1e3 * neo.axial_n * neo.length_m**2,) * 2, neo.torsion_n_m2, "neo_hookean")
+    bar = cr.solve_static(stiff, 4, tip_force_n=(0.0, 0.0, -P), increments=2)  # (bending stiff enough not to buckle)
+    np.testing.assert_allclose(bar.x[-1], [0.0, 0.0, lam * neo.length_m], rtol=0, atol=1e-8 * neo.length_m)
+    n3, tangent, _ = cr.axial_force(np.array([1.0 - 1e-6]), neo.axial_n, "neo_hookean")
+    np.testing.assert_allclose([n3[0] / -1e-6, tangent[0]], [neo.axial_n, neo.axial_n], rtol=1e-5)
+    with pytest.raises(ValueError, match="axial_law = 'rubber'"):
+        cr.RodSection(base.length_m, base.axial_n, base.shear_n, base.bending_n_m2, base.torsion_n_m2, "rubber")
