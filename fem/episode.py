@@ -54,7 +54,8 @@ class SolveSettings:
     contact_solver: str = "admm"  # "admm" (fem.contact_admm) | "newton" (fem.condensed._newton_points)
     contact_max_iterations: int = 200  # ADMM iterations per linearisation
     nonlinear_newton: str = "condensed"  # the nonlinear tier's step solver: "condensed" | "penalty" (fem.finite_strain)
-    rod_kinematics: str = "first_order"  # "first_order" | "second_order" (fem.rod_kinematics; admm only)
+    rod_kinematics: str = "first_order"  # "first_order" | "second_order" | "cosserat" (fem.rod_kinematics, fem.rod_exact; admm only)
+    rod_coupling: str = "dead"  # cosserat: "dead" | "held" (experimental: the rods held by the contact in their solves, fem.rod_exact)
     dynamics: str = "quasi_static"  # nonlinear tier: "quasi_static" | "backward_euler" (fem.dynamics)
     loss_factor: float = 0.1  # dynamics: damping ratio loss_factor / 2 at the rods' first bending mode
     steps_per_period: float = 4.0  # dynamics: the least steps per period of the rods' first bending mode
@@ -70,7 +71,7 @@ class SolveSettings:
         return cls(tier=f.tier, element=element, substeps=f.substeps, contact_band_m=f.contact_band_mm * 1e-3,
                    penalty_factor=f.penalty_factor, patches_per_tip=f.patches_per_tip, patches_per_side=f.patches_per_side,
                    gravity=f.gravity, small_strain_limit=f.small_strain_limit, buckling_limit=f.buckling_limit, contact_solver=f.contact_solver,
-                   contact_max_iterations=f.contact_max_iterations, rod_kinematics=f.rod_kinematics,
+                   contact_max_iterations=f.contact_max_iterations, rod_kinematics=f.rod_kinematics, rod_coupling=f.rod_coupling,
                    nonlinear_newton=f.nonlinear_newton, dynamics=f.dynamics, loss_factor=f.loss_factor,
                    steps_per_period=f.steps_per_period)
 

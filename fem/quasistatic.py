@@ -599,7 +599,12 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     # follow a rod past it; under dead loads between rounds (CosseratKinematics.holds False) a rod past its free
     # Euler load buckled sideways whatever held its tip (the default demo's flat punch, rods at 1.18 x: the
     # rounds diverged and the normal force fell from 18.4 N to 2.8 N), and they are refused as second order's
-    held = exact and kinematics is not None and kinematics.holds
+    held = exact and kinematics is not None and settings.rod_coupling == "held"
+    if exact and kinematics is not None:
+        kinematics.holds = held
+        if held and log is not None:
+            log('warning: fidelity.solve.rod_coupling = "held" is experimental: on the default demo one rod of 25 buckled sideways '
+                "in its own solve on one of two meshes (fem.rod_exact); compare with the nonlinear tier before relying on it")
     euler_n = _euler_load_n(scene) if second_order and not held else None
     rod_model = "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)"
     if exact and kinematics is not None and not held:

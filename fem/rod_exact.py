@@ -38,26 +38,35 @@ Exact for a prismatic rod away from the loads; a section's stress is not turned 
 which the emission reads, is invariant under the turn).
 
 The contact loop (:func:`fem.contact_admm.solve_step`) treats q and f_pd as the second-order kinematics'
-h: frozen over a linearisation, re-evaluated at its solution. The rods are solved there **held by the
-contact** (a Robin coupling, :meth:`CosseratKinematics.solve_rods`): each touching point carries its
-round's force f_k and a spring of the contact's penalty to where the round put it. At the rounds' fixed
-point the rods sit there and the springs carry nothing, so the answer is the dead-load one; before it, the
-springs hold what the contact holds. Under dead loads alone a rod pressed past its free Euler load by a face
-that grips its tip buckled in its own solve and the rounds diverged (the default demo's flat punch, rods at
-1.18 x: 2.8 N against the reference's 18.4 N; the tiny scene's flat press at about 1 x: 83 % off in force).
-Held, the tiny flat press is 4.0 / 3.8 / 4.4 % off the nonlinear tier at 1 x and the default demo is
-answered (9.9 / 10.4 / 8.3 %; first order 17.1 / 12.3 / 23.6 %). The springs' pull enters the linear rod and
-the P-delta moment as its resultant about the bent rod's tip (:meth:`_rod_answers`). The rounds are
-under-relaxed (``round_relaxation``) to ``round_rtol``. With ``holds = False`` (tests) the rods take dead
-loads and a rod past ``fidelity.solve.buckling_limit`` x its free Euler load is refused in every round
-(``CosseratKinematics.guard``).
+h: frozen over a linearisation, re-evaluated at its solution. How the rods take the round's forces in
+their solves (``fidelity.solve.rod_coupling``):
 
-What this is not: a finite-strain body; the base is linear, and so is the rods' axial law. The demo's
-press compresses its rods by about 11 %, where the neo-Hookean reference is 10-12 % stiffer than the
-linear law (uniaxial mu (lambda - lambda^-2) against 3 mu (lambda - 1)): that, not the rotations, is most
-of its remaining force error.
-Tiny scene's press and slide against the nonlinear tier (docs/stages/solve.md): 2.5 / 4.5 / 3.8 %
-on rod-base von Mises, per-rod force and tip displacement (tests/test_rod_exact.py).
+- ``"dead"`` (the default): as dead loads. A rod past its free Euler load then buckles in its own solve
+  whatever holds its tip, and the rounds diverge (the default demo's flat punch, rods at 1.18 x: 2.8 N
+  against the reference's 18.4 N; the tiny scene's flat press at about 1 x: 83 % off in force), so a rod past
+  ``fidelity.solve.buckling_limit`` x that load is refused in every round (``CosseratKinematics.guard``).
+- ``"held"`` (experimental): also **held by the contact** (a Robin coupling, :meth:`CosseratKinematics.solve_rods`):
+  each touching point carries its round's force f_k and a spring of the contact's penalty to where the round
+  put it. At the rounds' fixed point the rods sit there and the springs carry nothing, so the answer is the
+  dead-load one; before it, the springs hold what the contact holds, and a rod pressed past its free Euler
+  load by a face that grips its tip stands: the tiny scene's flat press at 1 x is 1.9 / 1.9 / 3.5 % off the
+  nonlinear tier (rod-base von Mises, force, tip displacement), at 2.4 x 1.6 / 1.5 / 6.1 %. The springs' pull
+  enters the linear rod and the P-delta moment as its resultant about the bent rod's tip (:meth:`_rod_answers`);
+  the rounds are under-relaxed (``round_relaxation``) to ``round_rtol``. Not yet robust: on the default demo
+  it was 7.1 / 5.8 / 8.2 % off on one mesh realisation, but on another one rod of 25 (13, pressed to 2.3 x its
+  free Euler load) buckled sideways by 4 mm in its solve (tip error 82 %): the rounds' stick and slip flip
+  between rounds, and a rod whose tip's points slip has no hold but the dead friction force. A coupling that
+  puts the rods' tangent compliance into the contact's Delassus operator (a Newton on the coupled problem,
+  not a fixed point) is the next step.
+
+The rods' axial law is neo-Hookean (:data:`AXIAL_LAW`, :func:`fem.cosserat_rod.axial_force`), as the nonlinear
+tier's material: the demo's press compresses its rods by about 11 %, where that law is 12.9 % stiffer than the
+linear one, and the recovered section stress is Cauchy's (on the current area, x lambda).
+
+What this is not: a finite-strain body; the base is linear.
+Tiny scene's press and slide against the nonlinear tier (docs/stages/solve.md): 2.5 / 4.5 / 3.9 %
+on rod-base von Mises, per-rod force and tip displacement (tests/test_rod_exact.py; 3.9 / 6.0 / 5.5 % on
+another mesh realisation of the scene).
 """
 
 from __future__ import annotations
@@ -162,8 +171,9 @@ class CosseratKinematics:
 
     pdelta = True
     #: the contact loop holds the loaded points by its stiffness in the rods' solve (the Robin coupling,
-    #: :meth:`solve_rods`); False: dead loads between rounds (refused past ``buckling_limit``, the guard)
-    holds = True
+    #: :meth:`solve_rods`; ``fidelity.solve.rod_coupling = "held"``); False: dead loads between rounds (refused
+    #: past ``buckling_limit``, the guard). Set per episode by fem.quasistatic
+    holds = False
     #: the contact rounds (fem.contact_admm.solve_step) of held rods: under-relaxed by this factor (Anderson's
     #: rule, second order's, diverged on the default demo's press: the rounds flip points between stick and slip,
     #: and 0.5 cycled between two stick patterns; 0.3 converged in all but one of its 19 contact steps), until the

@@ -540,6 +540,13 @@ class SolveFidelity(_Model):
     # (Cosserat) rod on the body's root motion, its nonlinear part added to the points and vertices and its
     # bent root moment to the body (fem.rod_exact); "first_order": the plain small-strain body
     rod_kinematics: Literal["first_order", "second_order", "cosserat"] = "first_order"
+    # rod_kinematics "cosserat": how the rods take the contact forces in their solves between the contact's
+    # rounds. "dead": as dead loads (a rod past buckling_limit x its free Euler load is refused); "held"
+    # (experimental): also held by the contact's stiffness where it touches (a Robin coupling, fem.rod_exact),
+    # so a rod pressed past its free Euler load by a face that grips its tip stands (the tiny scene's flat press
+    # at 1 x: 1.9 % off the nonlinear tier in force). Not yet robust: on the default demo one rod of 25 buckled
+    # sideways in its solve on one of two meshes (tip error 82 %); the run log says so
+    rod_coupling: Literal["dead", "held"] = "dead"
     # nonlinear tier: "quasi_static" (each step an equilibrium: no answer past a limit point, where a rod
     # buckles or snaps back) or "backward_euler" (implicit dynamics with the elastomer's inertia and damping,
     # energy-stable at any step; fem.dynamics, fem.finite_strain): the swipe that buckles rods and releases them
