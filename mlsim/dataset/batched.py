@@ -107,7 +107,7 @@ class BatchedChain:
         res = pipeline.run(scene, cache=cache, outputs=("geometry", "mesh", "calibration"), progress=False, log=log)
         geometry, (mesh, _) = res.results["geometry"], res.results["mesh"]
         ctx = pipeline.RunContext(scene, cache, None, False, log)
-        patches = patches_of(scene, geometry, mesh)
+        patches = patches_of(scene, geometry, mesh, ctx)
         sheet = _sheet(scene, patches, ctx)
         transport, raster = _deformed_parts(scene, sheet, ctx)
         located = memo(("patches_in_mesh",) + patches_key(scene), lambda: locate_points(

@@ -167,7 +167,7 @@ def _calibration_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from mlsim.render.calibration_frame import calibration_frame
 
     geometry, (mesh, _) = inputs["geometry"], inputs["mesh"]
-    patches = patches_of(scene, geometry, mesh)
+    patches = patches_of(scene, geometry, mesh, ctx)
     sheet = _sheet(scene, patches)
     tier = scene.fidelity.render.tier
     if tier == "deformed":
