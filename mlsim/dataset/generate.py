@@ -47,7 +47,7 @@ __all__ = ["plan_episodes", "run_episode_job", "generate", "failures_line", "CAC
 
 #: The stages a dataset keeps in the cache: the sensor's, shared by every episode (each episode's
 #: own intermediate results are not written to disk).
-CACHE_KEEP = ("geometry", "mesh", "calibration", "reduced_model", "transport_matrix", "ml_patches")
+CACHE_KEEP = ("geometry", "mesh", "calibration", "reduced_model", "transport_matrix", "ml_patches", "ml_patches_in_mesh")
 
 
 def _seed_int(*parts: int) -> int:
