@@ -29,8 +29,29 @@ from mlsim.errors import SolverError
 __all__ = ["Factorised", "factorise", "available_backends"]
 
 
+def _point_pypardiso_at_mkl() -> None:
+    """Tell pypardiso where mkl_rt is (``PYPARDISO_MKL_RT``) when it lies where pip's ``mkl`` puts it.
+
+    Without the variable every PyPardisoSolver (pypardiso makes one on import, we make another) runs
+    find_library (ldconfig, gcc) and then globs all of sys.prefix recursively for it: 0.9 s in each
+    new process, and a dataset or sweep starts a process per worker, a CLI test one per command.
+    The file found is the one pypardiso's glob picks first (the shortest path under sys.prefix/lib);
+    a variable set by the user is left alone."""
+    if "PYPARDISO_MKL_RT" in os.environ:
+        return
+    import glob
+    import sys
+
+    for pattern in ("lib/libmkl_rt.so*", "lib/libmkl_rt*.dylib", "Library/bin/mkl_rt*.dll"):
+        found = sorted(glob.glob(os.path.join(sys.prefix, pattern)), key=len)
+        if found:
+            os.environ["PYPARDISO_MKL_RT"] = found[0]  # inherited by the worker processes too
+            return
+
+
 def available_backends() -> tuple[str, ...]:
     try:
+        _point_pypardiso_at_mkl()
         import pypardiso  # noqa: F401
 
         return ("pardiso", "superlu")
@@ -127,6 +148,7 @@ def _pardiso_library():
     mkl_rt, 0.4 s, and the nonlinear tier factorises once per few Newton iterations)."""
     global _LIBRARY
     if _LIBRARY is None:
+        _point_pypardiso_at_mkl()
         import pypardiso
 
         _LIBRARY = pypardiso.PyPardisoSolver(mtype=11)  # loads mkl_rt and declares the argument types; mtype goes per call

@@ -72,6 +72,9 @@ class Cache:
         self.root = Path(root) if root is not None else default_cache_dir()
         self.keep = None if keep is None else frozenset(keep)
         self.in_memory = frozenset(in_memory)
+        #: (stage, key) of every result this object fetched or stored, the hidden precomputes'
+        #: (:func:`mlsim.stage.cached_precompute`) included: what a run needed from the cache
+        self.used: set[tuple[str, str]] = set()
 
     def keeps(self, stage: str) -> bool:
         return self.keep is None or stage in self.keep
@@ -83,6 +86,7 @@ class Cache:
         return (self.path(stage, key) / "COMPLETE").is_file()
 
     def store(self, stage: Stage, key: str, result) -> None:
+        self.used.add((stage.name, key))
         final = self.path(stage.name, key)
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{key[:12]}.", dir=final.parent))
@@ -97,6 +101,7 @@ class Cache:
             raise
 
     def fetch(self, stage: Stage, key: str):
+        self.used.add((stage.name, key))
         if stage.name in self.in_memory:
             return registry.memo(("cached stage", stage.name, key, str(self.root)), lambda: stage.load(self.path(stage.name, key)))
         return stage.load(self.path(stage.name, key))

@@ -203,6 +203,9 @@ def cached_precompute(ctx: RunContext, stage: Stage, payload: dict, build: Calla
     """A load-independent precompute (not a stage of the plan) from the cache by the hash of
     ``payload``, else ``build()`` and cache it: a dataset of episodes on one sensor pays once."""
     key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+    used = getattr(ctx.cache, "used", None)
+    if used is not None:  # also when this process's memo answers: the result is on disk all the same
+        used.add((stage.name, key))
 
     def load_or_build():
         if ctx.cache.has(stage.name, key):

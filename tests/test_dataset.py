@@ -183,8 +183,12 @@ def test_kill_halfway_then_resume_completes_without_duplicates(small, tmp_path):
     n_killed = len(store.complete_episodes(out))
     assert 3 <= n_killed < n_part
     spec, base = load_dataset_spec(spec_path)
-    summary = gen.generate(spec, base, out, workers=2, progress=False, log=lambda m: None)
+    lines = []
+    summary = gen.generate(spec, base, out, workers=2, progress=False, log=lines.append)
     assert summary["complete"] and summary["episodes_run_now"] == n_part - n_killed
+    # the sensor and interaction of the module's dataset: their precomputes are listed in the cache, and the
+    # resume goes straight to the workers (the module's fixture and the killed run each ran a driver episode)
+    assert any("no driver episode" in m for m in lines), lines
     ids = store.complete_episodes(out)
     assert len(ids) == n_part and not any((out / ".partial").iterdir())
     # against the uninterrupted run of the same spec (the module's fixture): byte-identical features
@@ -194,6 +198,33 @@ def test_kill_halfway_then_resume_completes_without_duplicates(small, tmp_path):
         b = store.read_episode(reference, e, ("dllm_features", "dllm_event", "rod_force_n"))
         for k in ("dllm_features", "dllm_event", "rod_force_n"):
             assert a[k].tobytes() == b[k].tobytes(), (e, k)
+
+
+def test_the_drivers_episode_lists_the_sensors_precomputes_for_the_next_run(small, tmp_path):
+    """The module's run listed what its driver episode took from the cache: the mesh, the calibration
+    frame and the hidden precomputes (the reduced tier's, the transport matrix, the ML sheet's patches and where they sit in the mesh). A later run skips
+    its driver episode only while every listed result is still in the cache."""
+    from mlsim import pipeline
+
+    spec, base, _ = small
+    cache = pipeline.Cache(keep=gen.CACHE_KEEP)
+    listed = gen._precomputes_listed(cache, base, spec)
+    assert listed is not None and {s for s, _ in listed} == {"mesh", "calibration", "reduced_model", "transport_matrix", "ml_patches", "ml_patches_in_mesh"}
+    elsewhere = pipeline.Cache(tmp_path / "cache", keep=gen.CACHE_KEEP)  # the same list, none of the results
+    path = gen._precomputes_path(elsewhere, base, spec)
+    path.parent.mkdir(parents=True)
+    path.write_bytes(gen._precomputes_path(cache, base, spec).read_bytes())
+    for stage, key in listed[:-1]:
+        (elsewhere.path(stage, key)).mkdir(parents=True)
+        (elsewhere.path(stage, key) / "COMPLETE").write_text(key)
+    assert gen._precomputes_listed(elsewhere, base, spec) is None  # one is missing: the driver runs its episode
+    stage, key = listed[-1]
+    elsewhere.path(stage, key).mkdir(parents=True)
+    (elsewhere.path(stage, key) / "COMPLETE").write_text(key)
+    assert gen._precomputes_listed(elsewhere, base, spec) == listed
+    # another interaction is another list
+    other = spec.model_copy(update={"interaction": spec.interaction.model_copy(update={"grip_force_n": spec.interaction.grip_force_n * 2})})
+    assert gen._precomputes_path(cache, base, other) != gen._precomputes_path(cache, base, spec)
 
 
 def test_a_half_written_episode_is_cleared(small, tmp_path):

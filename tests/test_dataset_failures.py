@@ -85,6 +85,7 @@ def test_a_rerun_retries_only_the_failed_episodes_and_leaves_the_stored_ones_unt
     rerun = second["summary"]
     assert rerun["episodes_run_now"] == 2 and rerun["complete"] and rerun["episodes_failed"] == 0 and rerun["failures"] == {}
     assert "(2 that failed before)" in second["lines"][0]
+    assert any("no driver episode" in m for m in second["lines"])  # the first run listed the sensor's precomputes
     assert not (out / store.FAILURES_NAME).exists() and "Incomplete" not in (out / "README.md").read_text()
     after = _episode_bytes(out)
     assert set(after) == {"push_00000", "push_00001", "pull_00000", "pull_00001"}

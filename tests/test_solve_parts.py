@@ -118,6 +118,26 @@ def test_pardiso_runs_in_mkls_reproducible_mode():
     assert first.tobytes() == second.tobytes()
 
 
+@pytest.mark.skipif("pardiso" not in available_backends(), reason="MKL PARDISO (pypardiso) is not installed on this machine")
+def test_pypardiso_is_pointed_at_the_library_its_own_search_finds(monkeypatch):
+    """fem.linsolve sets PYPARDISO_MKL_RT (pypardiso's search: 0.9 s in every new process) to the
+    mkl_rt pypardiso's recursive glob of sys.prefix would load first; a value the user set stays."""
+    import glob
+    import os
+    import sys
+
+    from fem import linsolve
+
+    monkeypatch.delenv("PYPARDISO_MKL_RT", raising=False)
+    linsolve._point_pypardiso_at_mkl()
+    theirs = sorted(glob.glob(f"{sys.prefix}/[Ll]ib*/**/*mkl_rt*", recursive=True), key=len)
+    if theirs:  # an MKL found by pypardiso's find_library instead (a system one) is left to pypardiso
+        assert os.environ["PYPARDISO_MKL_RT"] == theirs[0]
+    monkeypatch.setenv("PYPARDISO_MKL_RT", "/elsewhere/libmkl_rt.so")
+    linsolve._point_pypardiso_at_mkl()
+    assert os.environ["PYPARDISO_MKL_RT"] == "/elsewhere/libmkl_rt.so"
+
+
 # ---------------------------------------------------------------------------------- stress
 @pytest.mark.parametrize("element", ["P1", "P2", "P2P1"])
 def test_stress_operator_is_exact_for_a_linear_field(element):

@@ -92,14 +92,12 @@ class BatchedChain:
         from dllm.detector import DllmParams
         from dllm.features import taxel_index
         from dllm.stage import _calibration_of
-        from fem.mesh import locate_points
         from mlsim import emission, pipeline
         from mlsim.materials import phosphor_relative_brightness
         from mlsim.render import ambient as ambient_mod
         from mlsim.render.optics import camera_params, channel_factors_of, ml_channel_factors
         from mlsim.render.stage import _ambient_image, _deformed_parts, _sheet
-        from mlsim.emission.stage import patches_of, patches_key
-        from mlsim.stage import memo
+        from mlsim.emission.stage import patches_in_mesh, patches_of
 
         if scene.fidelity.render.tier != "deformed":
             raise ValueError(f'fidelity.render.tier = "{scene.fidelity.render.tier}": the batched chain runs the deformed tier; '
@@ -107,11 +105,10 @@ class BatchedChain:
         res = pipeline.run(scene, cache=cache, outputs=("geometry", "mesh", "calibration"), progress=False, log=log)
         geometry, (mesh, _) = res.results["geometry"], res.results["mesh"]
         ctx = pipeline.RunContext(scene, cache, None, False, log)
-        patches = patches_of(scene, geometry, mesh)
+        patches = patches_of(scene, geometry, mesh, ctx)
         sheet = _sheet(scene, patches, ctx)
         transport, raster = _deformed_parts(scene, sheet, ctx)
-        located = memo(("patches_in_mesh",) + patches_key(scene), lambda: locate_points(
-            first_episode.mesh_points, first_episode.mesh_tets, np.asarray(patches.vertices_m, dtype=float)))
+        located = patches_in_mesh(scene, first_episode.mesh_points, first_episode.mesh_tets, patches, ctx)
         spec = scene.emission
         m = emission.emission_model(spec.model)
         if spec.equivalent_stress != "von_mises":

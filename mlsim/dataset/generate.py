@@ -8,7 +8,8 @@
    action, sample index), so a larger dataset extends a smaller one of the same seed;
 2. the episodes already stored in ``DIR`` are skipped (a rerun after a kill resumes);
 3. the driver runs the sensor's precomputes once (mesh, reduced model, transport matrix, calibration
-   frame; cached on disk), then the workers run the episodes (:func:`run_episode_job`: the pipeline
+   frame; cached on disk, and listed there for the next run of the same sensor and interaction, which
+   then skips this step while they are all still cached), then the workers run the episodes (:func:`run_episode_job`: the pipeline
    to the DLLM at the base scene's tiers, single-threaded), and the driver writes each episode as
    it arrives, atomically (:mod:`mlsim.dataset.store`), with a progress bar (rate and ETA);
 4. an episode that raises (a refused load, a ``SolverError``) or whose worker process is killed (the
@@ -27,6 +28,7 @@ in the last bits; ``dataset.json`` records the mesh's cache key and the card say
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -45,7 +47,7 @@ __all__ = ["plan_episodes", "run_episode_job", "generate", "failures_line", "CAC
 
 #: The stages a dataset keeps in the cache: the sensor's, shared by every episode (each episode's
 #: own intermediate results are not written to disk).
-CACHE_KEEP = ("geometry", "mesh", "calibration", "reduced_model", "transport_matrix")
+CACHE_KEEP = ("geometry", "mesh", "calibration", "reduced_model", "transport_matrix", "ml_patches", "ml_patches_in_mesh")
 
 
 def _seed_int(*parts: int) -> int:
@@ -147,6 +149,37 @@ def failures_line(failures: dict[str, dict]) -> str:
     more = f" and {len(items) - 5} more" if len(items) > 5 else ""
     return f"{len(items)} episode{'s' if len(items) != 1 else ''} failed: {named}{more}"
 
+def _precomputes_path(cache, base: Scene, spec: DatasetSpec) -> Path:
+    """Where the driver lists the sensor's cached results its episode took (per base scene and interaction)."""
+    ident = json.dumps({"base": base.content_hash(), "interaction": spec.interaction.model_dump(mode="json"), "keep": CACHE_KEEP},
+                       sort_keys=True)
+    return Path(cache.root) / "dataset_precomputes" / f"{hashlib.sha256(ident.encode()).hexdigest()}.json"
+
+
+def _list_precomputes(cache, base: Scene, spec: DatasetSpec) -> None:
+    """After the driver's episode: the (stage, key) of each kept result it used, for the next run."""
+    import os
+    import tempfile
+
+    entries = sorted([s, k] for s, k in cache.used if s in CACHE_KEEP)
+    path = _precomputes_path(cache, base, spec)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)  # two drivers on one cache may both write it
+    with os.fdopen(fd, "wb") as f:
+        f.write(json.dumps(entries).encode())
+    os.replace(tmp, path)
+
+
+def _precomputes_listed(cache, base: Scene, spec: DatasetSpec) -> list | None:
+    """The listed results, if a list exists and every one of them is still in the cache; else None."""
+    path = _precomputes_path(cache, base, spec)
+    try:
+        entries = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return entries if entries and all(cache.has(s, k) for s, k in entries) else None
+
+
 def _machine() -> str:
     """The driver's hardware in words (the dataset card's throughput is of it and its workers)."""
     import os
@@ -188,11 +221,22 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     precompute_s = 0.0
     t0 = time.perf_counter()
     # the sensor's precomputes once, here, so the workers load them instead of each building them;
-    # through an episode, which may itself fail (its worker then records why): the next one is tried
-    for job in todo[:_PRECOMPUTE_TRIES]:
+    # through an episode, which may itself fail (its worker then records why): the next one is tried.
+    # Not again when an earlier run of this sensor and interaction listed what its episode took from
+    # the cache and all of it is still there: a resume or a rerun after failures ran a whole episode
+    # in the driver for nothing (in a fresh process ~10 s: the imports and the per-mesh set-up)
+    listed = _precomputes_listed(cache, base, spec) if todo and not spec.randomize else None
+    if listed:
+        log(f"[dataset] the sensor's precomputes are in the cache ({len(listed)} results an earlier run listed): no driver episode")
+        todo_warm = []
+    else:
+        todo_warm = todo[:_PRECOMPUTE_TRIES]
+    for job in todo_warm:
         try:
             pipeline.run(episode_scene(job | common), cache=cache, outputs=("dllm",), progress=False,
                          log=lambda m: log(m) if "precomput" in m or "tracing" in m else None)
+            if not spec.randomize:  # a randomised sensor's precomputes are the episode's own
+                _list_precomputes(cache, base, spec)
             break
         except Exception as exc:
             log(f"[dataset] precomputing through {job['episode_id']} failed ({type(exc).__name__}: {exc}); trying the next episode")

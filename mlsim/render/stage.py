@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from fem.stages import GEOMETRY_FIELDS
-from mlsim.emission.stage import patches_key, patches_of
+from mlsim.emission.stage import patches_in_mesh, patches_of
 from mlsim.scene import Scene
 from mlsim.stage import RunContext, Stage, cached_precompute, memo, npz_io, stage_key
 
@@ -61,9 +61,6 @@ AMBIENT_IMAGE_FIELDS = ("ambient.lamp", "ambient.power_w", "ambient.height_m", "
 
 
 def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
-    import numpy as np
-
-    from fem.mesh import locate_points
     from mlsim import render
 
     em, episode = inputs["emission"], inputs["solve"]
@@ -72,8 +69,7 @@ def _render_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     spec = scene.fidelity.render
     transport = raster = None
     # where each sheet vertex sits in the mesh: of the sensor, not the episode (shared in-process)
-    located = memo(("patches_in_mesh",) + patches_key(scene),
-                    lambda: locate_points(episode.mesh_points, episode.mesh_tets, np.asarray(em.patches.vertices_m, dtype=float)))
+    located = patches_in_mesh(scene, episode.mesh_points, episode.mesh_tets, em.patches, ctx)
     vertices = render.deformed_vertices(episode, em.patches.vertices_m, located)
     if spec.tier == "deformed":
         transport, raster = _deformed_parts(scene, sheet, ctx)
@@ -167,7 +163,7 @@ def _calibration_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from mlsim.render.calibration_frame import calibration_frame
 
     geometry, (mesh, _) = inputs["geometry"], inputs["mesh"]
-    patches = patches_of(scene, geometry, mesh)
+    patches = patches_of(scene, geometry, mesh, ctx)
     sheet = _sheet(scene, patches)
     tier = scene.fidelity.render.tier
     if tier == "deformed":
