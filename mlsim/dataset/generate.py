@@ -149,6 +149,7 @@ def failures_line(failures: dict[str, dict]) -> str:
     more = f" and {len(items) - 5} more" if len(items) > 5 else ""
     return f"{len(items)} episode{'s' if len(items) != 1 else ''} failed: {named}{more}"
 
+
 def _precomputes_path(cache, base: Scene, spec: DatasetSpec) -> Path:
     """Where the driver lists the sensor's cached results its episode took (per base scene and interaction)."""
     ident = json.dumps({"base": base.content_hash(), "interaction": spec.interaction.model_dump(mode="json"), "keep": CACHE_KEEP},
