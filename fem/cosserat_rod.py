@@ -1,5 +1,11 @@
 """A discrete geometrically exact (Cosserat) rod in statics: large rotations, small strains.
 
+About 620 lines: one model, its energy, exact gradient and Hessian and the Newton / trust region on them.
+Each of its pieces (the strains, the point loads and their springs, the axial law) enters the energy,
+the gradient and the Hessian, which tests/test_cosserat_rod.py checks against each other term by term,
+and fem.cosserat_kernels mirrors the file function by function; split, a piece's three terms would live
+apart.
+
 The rod of issue 38's fast tier, first part: a clamped straight rod of N equal segments. Each segment
 e carries a material frame, the unit quaternion q_e (its rotation R_e takes the section's axes d1, d2
 and the tangent d3 from the reference frame), and joins the nodes x_e and x_{e+1}. The strains are
