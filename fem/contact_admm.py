@@ -702,7 +702,7 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
             # per point it would sit at the ADMM tolerance's noise)
             u_full = u + hidden
             moved_h = kin.resultant_change(f - f_lin)
-            h_of_f, load = _hidden(kin, G, f, _robin_hold(kin, G, f, n, hidden, load))
+            h_of_f, load = _hidden(kin, G, f, _robin_hold(kin, G, fn > 0.0, hidden, load))
             # Anderson mixing of depth 1 on the fixed point h = h(f(h)) (Walker & Ni 2011): the plain
             # iteration contracts by only about 0.4 per round on the tiny scene's slide
             r = h_of_f - hidden
@@ -751,16 +751,15 @@ def _hidden(kin, G: _Delassus, f: np.ndarray, hold=None) -> tuple[np.ndarray, np
     return (q + G.elastic(load) if kin.pdelta else q), load
 
 
-def _robin_hold(kin, G: _Delassus, f: np.ndarray, n: np.ndarray, hidden: np.ndarray, load: np.ndarray):
+def _robin_hold(kin, G: _Delassus, touching: np.ndarray, hidden: np.ndarray, load: np.ndarray):
     """The Robin coupling of geometrically exact rods (``kin.holds``; :meth:`fem.rod_exact.CosseratKinematics.solve_rods`):
     (q_frozen, f_pd, K) with q_frozen = h - E f_pd the nonlinear part the round froze, f_pd its P-delta load
-    (m, 3) N and K (m, 3, 3) N/m the contact's penalty at each point that touches in this round's solution f
-    (m, 3) N, isotropic. (Along the normal it is the contact's own stiffness, which holds a pressed face flat;
+    (m, 3) N and K (m, 3, 3) N/m the contact's penalty at each point that touches (``touching`` (m,): a
+    compressive normal force in this round's solution), isotropic. (Along the normal it is the contact's own stiffness, which holds a pressed face flat;
     across it, a slipping point's force does not follow its position, but at the rounds' fixed point the springs
     carry nothing whatever their stiffness, and holding only the sticking points let the default demo's rods
     buckle in their solves where their tips' points flipped to slip.) None for kinematics without the coupling."""
     if not getattr(kin, "holds", False):
         return None
-    touching = np.einsum("ij,ij->i", f, n) > 0.0
     K = (touching / G.inv_k)[:, None, None] * np.eye(3)
     return (hidden - G.elastic(load) if kin.pdelta else hidden), load, K

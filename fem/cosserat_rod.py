@@ -498,7 +498,8 @@ def _newton_compiled(state: RodState, section: RodSection, clamp, F, M, toleranc
                                 stiffness, anchor, tol_f, tol_m, int(max_iterations), not np.any(M_f), MAX_TURN_RAD, section.axial_code)
     rest = np.flatnonzero(status != ck.CONVERGED)
     if rest.size:
-        part = None if loads is None else PointLoads(seg, along, offset, force, stiffness, anchor).take(rest)
+        springs = (None, None) if loads is None or loads.stiffness_n_m is None else (stiffness, anchor)
+        part = None if loads is None else PointLoads(seg, along, offset, force, *springs).take(rest)
         with threadpool_limits(1, user_api="blas"):  # small matrices: BLAS threads only fight each other
             done = _newton(RodState(x[rest], q[rest]), section, clamp_f[rest], F_f[rest], M_f[rest], (tol_f[rest], tol_m[rest]),
                            max_iterations, where, part)

@@ -600,17 +600,18 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     # Euler load buckled sideways whatever held its tip (the default demo's flat punch, rods at 1.18 x: the
     # rounds diverged and the normal force fell from 18.4 N to 2.8 N), and they are refused as second order's
     held = exact and kinematics is not None and settings.rod_coupling == "held"
+    euler_n = _euler_load_n(scene) if second_order and not held else None
+    rod_model = "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)"
     if exact and kinematics is not None:
         kinematics.holds = held
         if held and log is not None:
             log('warning: fidelity.solve.rod_coupling = "held" is experimental: on the default demo one rod of 25 buckled sideways '
                 "in its own solve on one of two meshes (fem.rod_exact); compare with the nonlinear tier before relying on it")
-    euler_n = _euler_load_n(scene) if second_order and not held else None
-    rod_model = "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)"
-    if exact and kinematics is not None and not held:
-        # every round of the contact loop, before the rods are solved: the rounds' fixed point diverges past the
-        # limit (to an answer with little force, which the check after the step would pass)
-        kinematics.guard = lambda f: _check_buckling(f, rod, n_rods, euler_n, settings.buckling_limit, "a contact round", settings.tier, rod_model)
+        if not held:
+            # every round of the contact loop, before the rods are solved: the rounds' fixed point diverges past the
+            # limit (to an answer with little force, which the check after the step would pass)
+            kinematics.guard = lambda f: _check_buckling(f, rod, n_rods, euler_n, settings.buckling_limit, "a contact round", settings.tier,
+                                                         rod_model)
 
     steps = grid.step_times_s
     S = len(steps)

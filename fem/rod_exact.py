@@ -312,8 +312,7 @@ class CosseratKinematics:
 
     def _rod_answers(self, f: np.ndarray, hold=None):
         """Per loaded rod j: (j, state, root translation, root rotation, P-delta load on its points (k, 3) N,
-        the straight rod's linear dofs under its forces, that load and the springs' pull, the contact forces
-        f on its points (k, 3) N).
+        the straight rod's linear dofs under its forces, that load and the springs' pull).
 
         Where held, the springs' pull enters the linear rod and the P-delta moment as its resultant, the force
         F_s and the moment M_s about the tip in the bent rod (where the springs act), at the straight rod's tip:
@@ -340,7 +339,7 @@ class CosseratKinematics:
                 f_pd[:2] = -np.cross([0.0, 0.0, 1.0], [moment[0], moment[1], 0.0])[:2] / lever
             load = w[:, None] * f_pd
             d_lin = self._linear_dofs(cr.PointLoads(*self._attach[j], fj + load), F_s, M_s)
-            yield j, state, u_r, th_r, load, d_lin, fj
+            yield j, state, u_r, th_r, load, d_lin
 
     def _nonlinear_part(self, j: int, state: cr.RodState, u_r, th_r, d_lin, Y: np.ndarray) -> np.ndarray:
         """Points Y (k, 3) m of rod j carried by the rod in ``state`` less the same rod linearised (q's rule)."""
@@ -356,7 +355,7 @@ class CosseratKinematics:
         f = np.asarray(f_points, dtype=float)
         q = np.zeros_like(f)
         load = np.zeros_like(f)
-        for j, state, u_r, th_r, load_j, d_lin, _ in self._answers(f, hold):
+        for j, state, u_r, th_r, load_j, d_lin in self._answers(f, hold):
             pts = self._points[j]
             load[pts] = load_j
             q[pts] = self._nonlinear_part(j, state, u_r, th_r, d_lin, self.X[pts])
@@ -374,7 +373,7 @@ class CosseratKinematics:
         if forces is None:
             return out
         sec = self.sections
-        for j, state, u_r, th_r, _, d_lin, _ in self._answers(np.asarray(forces, dtype=float)):
+        for j, state, u_r, th_r, _, d_lin in self._answers(np.asarray(forces, dtype=float)):
             verts = sec.vertices[j]
             verts = verts[points[verts, 2] >= sec.base_z_m - 1e-7]
             out[verts] = self._nonlinear_part(j, state, u_r, th_r, d_lin, points[verts])
@@ -423,15 +422,16 @@ class CosseratKinematics:
         out = np.zeros(unit_stress.shape[2:])
         if not len(rods):
             return out
-        answers = {j: (state, load, fc) for j, state, _, _, load, _, fc in self._answers(np.asarray(f, dtype=float))}
+        answers = {j: (state, load) for j, state, _, _, load, _ in self._answers(np.asarray(f, dtype=float))}
         sec = self.sections
         tip_z = sec.base_z_m + sec.length_m
         l = sec.length_m / self.segments
         for i, j in enumerate(rods):
             if j not in answers:
                 continue
-            state, load, fk = answers[j]
+            state, load = answers[j]
             pts = self._points[j]
+            fk = np.asarray(f, dtype=float)[pts]
             on = np.flatnonzero((tet_rod == sec.rods[j]) & (tet_z >= sec.base_z_m))
             z = tet_z[on]
             h = np.clip(z - sec.base_z_m, 0.0, sec.length_m)
@@ -450,13 +450,16 @@ class CosseratKinematics:
             M_lin = np.einsum("nk,nkc->nc", above, np.cross(self.X[pts][None, :, :] - axis[:, None, :], g[None]))
             dM = r_ex[:, 3:] - M_lin
             dF = r_ex[:, :3] - F_lin
-            coeff = np.concatenate([dF, dM - (tip_z - z)[:, None] * np.cross([0.0, 0.0, 1.0], dF)], axis=1)  # T(z)^-1 dr
+            lever = (tip_z - z)[:, None]
+
+            def t_inverse(F, M):  # T(z)^-1 (F, M): the resultant as the unit tip loads' coefficients
+                return np.concatenate([F, M - lever * np.cross([0.0, 0.0, 1.0], F)], axis=1)
+
+            coeff = t_inverse(dF, dM)
             if self.section.axial_law == "neo_hookean":
                 # Cauchy's stress on the section's current area: an incompressible section stretched by lambda has
                 # area A_0 / lambda, so the whole section's stress, unit_stress T^-1 r (nominal), times lambda
                 chord = np.einsum("nji,nj->ni", R, state.x[e + 1] - state.x[e])[:, 2] / l  # lambda of each tet's segment
-                F_sec = r_ex[:, :3]
-                full = np.concatenate([F_sec, r_ex[:, 3:] - (tip_z - z)[:, None] * np.cross([0.0, 0.0, 1.0], F_sec)], axis=1)
-                coeff = coeff + (chord - 1.0)[:, None] * full
+                coeff = coeff + (chord - 1.0)[:, None] * t_inverse(r_ex[:, :3], r_ex[:, 3:])
             out[:, on] += np.einsum("ksn,nk->sn", unit_stress[i][:, :, on], coeff)
         return out

@@ -18,6 +18,11 @@ def patches_key(scene: Scene) -> tuple:
     return stage_key(scene, "mesh"), scene.fidelity.mesh.segments_per_circle, scene.fidelity.render.sheet_edge_mm * 1e-3
 
 
+def _patches_payload(key: tuple) -> dict:
+    """The cache payload of a precompute of the ML sheet on a mesh (:func:`patches_key`'s key)."""
+    return {"mesh": key[0], "segments_per_circle": key[1], "sheet_edge_m": key[2], "version": "1"}
+
+
 def patches_of(scene: Scene, geometry, mesh, ctx: "RunContext | None" = None):
     """The ML sheet's emitting patches of this sensor and mesh (shared in-process; with ``ctx``, also
     in its cache: building them, 1.9 s, was most of a fresh dataset worker's first emission)."""
@@ -27,8 +32,7 @@ def patches_of(scene: Scene, geometry, mesh, ctx: "RunContext | None" = None):
     build = lambda: emission.ml_patches(geometry, mesh, key[1], key[2])  # noqa: E731
     if ctx is None:
         return memo(("patches",) + key, build)
-    payload = {"mesh": key[0], "segments_per_circle": key[1], "sheet_edge_m": key[2], "version": "1"}
-    return cached_precompute(ctx, ML_PATCHES, payload, build, "[emission] the ML sheet's patches (cached for this sensor)")
+    return cached_precompute(ctx, ML_PATCHES, _patches_payload(key), build, "[emission] the ML sheet's patches (cached for this sensor)")
 
 
 def patches_in_mesh(scene: Scene, points, tets, patches, ctx: "RunContext | None" = None):
@@ -43,8 +47,7 @@ def patches_in_mesh(scene: Scene, points, tets, patches, ctx: "RunContext | None
     build = lambda: locate_points(points, tets, np.asarray(patches.vertices_m, dtype=float))  # noqa: E731
     if ctx is None:
         return memo(("patches_in_mesh",) + key, build)
-    payload = {"mesh": key[0], "segments_per_circle": key[1], "sheet_edge_m": key[2], "version": "1"}
-    return cached_precompute(ctx, PATCHES_IN_MESH, payload, build, "[render] the sheet's vertices located in the mesh (cached for this sensor)")
+    return cached_precompute(ctx, PATCHES_IN_MESH, _patches_payload(key), build, "[render] the sheet's vertices located in the mesh (cached for this sensor)")
 
 
 def _located_save(located, directory: Path) -> None:
