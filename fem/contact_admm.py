@@ -699,9 +699,12 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
             # the linearisation's error at the h it froze (the gap's curvature), and h's change through
             # the force it moves between the last two solutions, per rod (the fixed point's residual; k |dh|
             # would bound it at the penalty's stiffness, 100 x the body's at the default penalty, and
-            # per point it would sit at the ADMM tolerance's noise)
+            # per point it would sit at the ADMM tolerance's noise). Under-relaxed rounds move only relaxation x
+            # what the fixed point's residual would: divided by it, the test is of the residual, not of the damped
+            # step (undivided, the held rods' rounds stopped early: the tiny scene's flat press at 2.4 x the free
+            # Euler load 3.6 % off the nonlinear tier in tip displacement at relaxation 0.3, 8.4 % at 0.15; 1.9 % at both)
             u_full = u + hidden
-            moved_h = kin.resultant_change(f - f_lin)
+            moved_h = kin.resultant_change(f - f_lin) / (relaxation or 1.0)
             h_of_f, load = _hidden(kin, G, f, _robin_hold(kin, G, fn > 0.0, hidden, load))
             # Anderson mixing of depth 1 on the fixed point h = h(f(h)) (Walker & Ni 2011): the plain
             # iteration contracts by only about 0.4 per round on the tiny scene's slide

@@ -115,9 +115,10 @@ def test_the_tiny_press_and_slide_within_5_percent_of_the_nonlinear_tier(tiny_me
     Frobenius errors over frames and rods (mlsim.studies.accuracy): measured rod-base von Mises / per-rod
     contact force / tip displacement 2.5 / 4.4 / 4.0 % with Cosserat rods, 18.5 / 16.1 / 18.4 % with
     second-order kinematics, 52 / 93 / 48 % with first order; the reduced tier 2.5 / 4.2 / 3.8 % (with the
-    neo-Hookean axial law of 2026-11-28: 2.5 / 4.5 / 3.9 % and 2.6 / 4.3 / 3.8 %; on another mesh realisation of
-    the same scene, 2011 tets against these 1913, 3.6-3.9 / 5.9-6.1 / 5.4-5.5 % whatever the rods' coupling and
-    axial law). About 25 s, the nonlinear tier most."""
+    neo-Hookean axial law of 2026-11-28: 2.5 / 4.5 / 3.9 % and 2.6 / 4.3 / 3.8 %; with the rounds tested on their
+    residual, solve stage 18, on the shipped 2027-tet mesh: 2.0 / 2.3 / 2.0 % and 2.2 / 2.1 / 1.8 %, stage 17 there
+    2.1 / 2.3 / 2.0 % and 2.2 / 2.1 / 1.9 %). About 25 s,
+    the nonlinear tier most."""
     from mlsim.studies.accuracy import relative_error, rod_measures
 
     scene, _, mesh, _ = tiny_mesh
@@ -150,8 +151,9 @@ def test_a_flat_press_at_the_free_euler_load_is_followed_by_held_rods(tiny_mesh,
     """A flat face pressed into the tiny scene's rods to about their free Euler load (1.38-1.44 N each against
     1.41 N) and slid: the face grips the tips, so the rods stand (clamped-guided: four times that load). The rods
     held by the contact in their solves (the Robin coupling) are within 5 % of the nonlinear tier:
-    measured rod-base von Mises / per-rod force / tip displacement 1.9 / 1.9 / 3.5 % (``rod_coupling = "held"``;
-    with the linear axial law 4.0 / 3.8 / 4.4 %). Under dead loads between
+    measured rod-base von Mises / per-rod force / tip displacement 1.9 / 1.4 / 1.5 % (``rod_coupling = "held"``,
+    solve stage 18; 1.4 / 1.3 / 3.4 % at stage 17, whose rounds stopped on the force a damped round moved; with
+    the linear axial law 4.0 / 3.8 / 4.4 %). Under dead loads between
     rounds they buckled in their own solves (65 / 83 / 122 % with the buckling limit raised to 10) and are
     refused at the default limit, in the contact round, naming the field."""
     from mlsim.studies.accuracy import relative_error, rod_measures
@@ -167,6 +169,8 @@ def test_a_flat_press_at_the_free_euler_load_is_followed_by_held_rods(tiny_mesh,
     assert any('rod_coupling = "held" is experimental' in line for line in said), said
     err = {k: relative_error(m[k], ref[k]) for k in m}
     assert err["rod_base_von_mises"] <= 0.05 and err["rod_contact_force"] <= 0.05 and err["tip_displacement"] <= 0.05, err
+    # the rounds tested on their residual, not on the force a round damped by round_relaxation moved (3.4 % before)
+    assert err["tip_displacement"] <= 0.025, err
 
 
 def test_dead_loads_past_the_buckling_limit_are_refused_in_the_contact_round(tiny_mesh, body):
