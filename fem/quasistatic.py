@@ -376,7 +376,11 @@ def far_field_basis(response: np.ndarray, patch_rod: np.ndarray, own_rows: dict,
         own = own_rows.get(int(a), np.zeros(0, dtype=int))
         A = response[:, cols].astype(float)
         A[own] = 0.0
-        U, S, Vt = np.linalg.svd(A, full_matrices=False)
+        # one BLAS thread: a tall, thin SVD (98448 x 21 on the screw sensor) is a few memory-bound
+        # passes, and on the 2 shared cores its two threads waited for each other (the screw sensor's
+        # stress basis, 25 SVDs: 9.0-11.6 s, 1.5 s on one thread); its bits no longer depend on the thread count
+        with _blas_threads().limit(limits=1, user_api="blas"):
+            U, S, Vt = np.linalg.svd(A, full_matrices=False)
         tail = np.sqrt(np.cumsum((S**2)[::-1])[::-1])  # tail[k]: the Frobenius norm left out at rank k
         total = tail[0] if len(tail) else 0.0
         k = int(np.argmax(np.r_[tail, 0.0] <= rtol * total)) if total > 0 else 0
