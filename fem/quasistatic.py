@@ -310,8 +310,13 @@ class ReducedModel:
             Pb = P[cs]  # (b, 3 M): these columns' shares of their patches
             touched = np.unique(Pb.indices)
             Pt = Pb[:, touched].toarray()
-            stress[:, touched] += SX @ Pt
-            disp[:, touched] += DX @ Pt
+            # the patches' responses added in one pass on every core, rounded as numpy's fancy-index
+            # add rounds them (field_kernels.add_columns); the (n, b) x (b, k) products on one BLAS
+            # thread (thin: on two threads of the shared cores they took twice as long, same bits)
+            with _blas_threads().limit(limits=1, user_api="blas"):
+                SXP, DXP = SX @ Pt, DX @ Pt
+            field_kernels.add_columns(stress, touched, SXP)
+            field_kernels.add_columns(disp, touched, DXP)
             WpX = rows_of(wpx_rows, WpfT.shape[0], b)
             field_kernels.sparse_product(WpfT.indptr, WpfT.indices, WpfT.data, Xf, WpX)
             C_patch[:, touched] += WpX @ Pt
