@@ -11,9 +11,10 @@ loads of an episode) as sums of precomputed responses. Two of its sums are poor 
 
 Both are plain loops here, each output row written by one thread in a fixed order, so the result
 does not depend on the thread count. The reduced tier's precompute (:meth:`fem.quasistatic.ReducedModel.build`)
-reads its solves' blocks through two more: a sparse-dense product into a given array, each row
-summed as scipy's ``csr_matvecs`` sums it (the same bits, on every core), and a copy of a
-column-major block into a row-major one on every core.
+reads its solves' blocks through three more: a sparse-dense product into a given array, each row
+summed as scipy's ``csr_matvecs`` sums it (the same bits, on every core), a copy of a
+column-major block into a row-major one on every core, and a block's patch responses added into
+some columns of the float32 responses as numpy's ``out[:, cols] += values`` adds them.
 """
 
 from __future__ import annotations
@@ -75,3 +76,17 @@ def copy_rows(src, out):
     for i in prange(n):
         for u in range(U):
             out[i, u] = src[i, u]
+
+
+@njit(parallel=True, cache=True)
+def add_columns(out, cols, values):
+    """out[:, cols] += values in place: out (n, K) (float32 or float64), cols (k,) distinct column
+    indices, values (n, k) float64. Each entry is rounded as numpy rounds it, the sum in float64 and
+    then to out's type: the same bits, but one pass on every core where numpy's fancy-index add
+    gathers the columns, adds and scatters them (three passes over a float32 (6 T, 3 M) array whose
+    rows are 2 KB apart, on one core: 3.2 s of the screw sensor's precompute)."""
+    n = out.shape[0]
+    for i in prange(n):
+        for j in range(cols.shape[0]):
+            c = cols[j]
+            out[i, c] = out[i, c] + values[i, j]

@@ -310,8 +310,13 @@ class ReducedModel:
             Pb = P[cs]  # (b, 3 M): these columns' shares of their patches
             touched = np.unique(Pb.indices)
             Pt = Pb[:, touched].toarray()
-            stress[:, touched] += SX @ Pt
-            disp[:, touched] += DX @ Pt
+            # the patches' responses added in one pass on every core, rounded as numpy's fancy-index
+            # add rounds them (field_kernels.add_columns); the (n, b) x (b, k) products on one BLAS
+            # thread (thin: on two threads of the shared cores they took twice as long, same bits)
+            with _blas_threads().limit(limits=1, user_api="blas"):
+                SXP, DXP = SX @ Pt, DX @ Pt
+            field_kernels.add_columns(stress, touched, SXP)
+            field_kernels.add_columns(disp, touched, DXP)
             WpX = rows_of(wpx_rows, WpfT.shape[0], b)
             field_kernels.sparse_product(WpfT.indptr, WpfT.indices, WpfT.data, Xf, WpX)
             C_patch[:, touched] += WpX @ Pt
@@ -376,7 +381,11 @@ def far_field_basis(response: np.ndarray, patch_rod: np.ndarray, own_rows: dict,
         own = own_rows.get(int(a), np.zeros(0, dtype=int))
         A = response[:, cols].astype(float)
         A[own] = 0.0
-        U, S, Vt = np.linalg.svd(A, full_matrices=False)
+        # one BLAS thread: a tall, thin SVD (98448 x 21 on the screw sensor) is a few memory-bound
+        # passes, and on the 2 shared cores its two threads waited for each other (the screw sensor's
+        # stress basis, 25 SVDs: 9.0-11.6 s, 1.5 s on one thread); its bits no longer depend on the thread count
+        with _blas_threads().limit(limits=1, user_api="blas"):
+            U, S, Vt = np.linalg.svd(A, full_matrices=False)
         tail = np.sqrt(np.cumsum((S**2)[::-1])[::-1])  # tail[k]: the Frobenius norm left out at rank k
         total = tail[0] if len(tail) else 0.0
         k = int(np.argmax(np.r_[tail, 0.0] <= rtol * total)) if total > 0 else 0

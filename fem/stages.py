@@ -152,8 +152,10 @@ def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
     from fem.quasistatic import build_reduced
 
     # 3: each rod's point compliance and local responses (fem.contact_admm.RodBlockDelassus);
-    # 4: the patch responses off their own rod in low-rank form (fem.quasistatic.far_field_basis)
-    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(BODY_FIELDS), "version": "4"}
+    # 4: the patch responses off their own rod in low-rank form (fem.quasistatic.far_field_basis);
+    # 5: their SVDs on one BLAS thread (the same model to round-off: on two threads 70 of the screw
+    # sensor's 14.8 M stress basis entries differed in their last bit, and the coefficients in round-off)
+    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(BODY_FIELDS), "version": "5"}
     return cached_precompute(ctx, REDUCED_MODEL, payload, lambda: build_reduced(scene, mesh),
                               "[solve] reduced tier: precomputing the contact points' compliance and responses (cached for this sensor)")
 

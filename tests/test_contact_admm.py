@@ -446,3 +446,30 @@ def test_running_out_of_iterations_with_left_out_points_inside_is_reported():
                 seen_inside += 1
                 assert res > tol
     assert seen_inside >= 8  # the case arose (at 5 iterations on every seed)
+
+
+def test_the_rod_blocks_are_the_same_bits_on_any_number_of_blas_threads():
+    """The rod blocks' eigendecompositions, their inverses per rho and so the ADMM answer are the
+    same bits in a process on two BLAS threads as on one (a dataset worker's): on two threads the
+    inverses' products rounded differently (the screw sensor's first factorisation: an ADMM solve at
+    rtol 1e-7 took 93 iterations against one thread's 96), and on a loaded 2-core machine its 25
+    eigendecompositions took 3.2 s against 28 ms. Their LAPACK calls run on one thread (on main
+    this test fails: the inverses differ in their last bits)."""
+    from threadpoolctl import threadpool_limits
+
+    made, _, _, rod, rng = _rod_block_problem(7, sizes=(34, 30, 26))  # (its inputs on this process's threads)
+    m = len(rod)
+    n = np.tile([0.0, 0.0, 1.0], (m, 1))
+    b = 1e-6 * rng.standard_normal((m, 3))
+    b[:, 2] = -1e-5 * rng.uniform(0.0, 1.5, m)
+    cut = np.flatnonzero(rng.uniform(size=m) < 0.3)  # every rod cut: their sub-blocks diagonalised
+    answers = []
+    for threads in (1, 2):
+        with threadpool_limits(threads, user_api="blas"):
+            rods = ca.RodBlockDelassus(made.blocks, made.H, rod, 1.0 / made.inv_k)
+            f, *_ = ca.admm_contact(rods, b, n, MU, rtol=1e-9, max_iterations=20000)
+            sub = rods.restrict_points(cut)
+            answers.append([*rods._eig, *rods._Q, *sub._eig, *sub._Q, *rods.kernel_operator(0)[1:4], *rods.kernel_operator(3)[1:4], f])
+    assert len(answers[0]) == len(answers[1])
+    for one, two in zip(*answers):
+        np.testing.assert_array_equal(one, two)

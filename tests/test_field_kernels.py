@@ -92,3 +92,27 @@ def test_the_sparse_product_into_an_array_is_scipys_bit_for_bit():
     out = np.empty_like(c)
     field_kernels.copy_rows(src, out)
     assert out.flags.c_contiguous and np.array_equal(out, c)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_adding_into_columns_rounds_as_numpys_fancy_index_add(dtype):
+    """add_columns(out, cols, values) is numpy's ``out[:, cols] += values`` bit for bit: the float64
+    sum rounded to out's type once per entry (the reduced tier's precompute adds its blocks' patch
+    responses this way into float32 arrays, and its model stays byte-identical), on any number of
+    threads; the columns not named are untouched."""
+    rng = np.random.default_rng(6)
+    out0 = (1e3 * rng.standard_normal((2000, 60))).astype(dtype)
+    cols = np.sort(rng.choice(60, 17, replace=False))
+    values = rng.standard_normal((2000, 17)) * np.exp(rng.uniform(-25.0, 5.0, (2000, 17)))  # many below out's rounding
+    expect = out0.copy()
+    expect[:, cols] += values
+    threads = numba.get_num_threads()
+    try:
+        for t in (1, threads):
+            numba.set_num_threads(t)
+            out = out0.copy()
+            field_kernels.add_columns(out, cols, values)
+            assert out.dtype == dtype and out.tobytes() == expect.tobytes()
+    finally:
+        numba.set_num_threads(threads)
+    assert not np.array_equal(expect[:, cols], out0[:, cols])  # (the add did something)

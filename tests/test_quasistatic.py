@@ -267,6 +267,26 @@ def test_the_far_field_basis_keeps_the_low_rank_response_off_each_rods_own_rows(
         np.testing.assert_array_equal(np.delete(coeff[rows], c, axis=1), 0.0)
 
 
+def test_the_far_field_basis_is_the_same_bits_on_any_number_of_blas_threads():
+    """far_field_basis's SVDs run on one BLAS thread: a process on two threads (the dataset driver,
+    ``mlsim run``) makes the bits that one on one thread makes (on main this fails: two threads' SVD
+    of a tall response rounds differently), and the cached model does not depend on the machine's
+    thread count."""
+    from threadpoolctl import threadpool_limits
+
+    rng = np.random.default_rng(5)
+    n, patch_rod = 30000, np.repeat([0, 1, 2], [7, 5, 6])  # tall and thin, as the sensors' responses
+    response = (rng.standard_normal((n, 6)) @ rng.standard_normal((6, 3 * len(patch_rod)))
+                + 1e-3 * rng.standard_normal((n, 3 * len(patch_rod)))).astype(np.float32)
+    own = {0: np.arange(0, 300), 1: np.arange(300, 800), 2: np.arange(800, 1000)}
+    made = []
+    for threads in (1, 2):
+        with threadpool_limits(threads, user_api="blas"):
+            made.append(qs.far_field_basis(response, patch_rod, own))
+    np.testing.assert_array_equal(made[0][0], made[1][0])
+    np.testing.assert_array_equal(made[0][1], made[1][1])
+
+
 def test_a_rods_load_reaches_the_rest_of_the_sensor_as_its_resultant(tiny_mesh, body):
     """Saint-Venant on the reduced tier's precompute: away from its own tets a rod's patch loads act
     through about six far-field vectors (the rod's resultant force and moment: 5-7 to 1e-3 of their

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import struct
+import subprocess
+import sys
+from pathlib import Path
 
 import colour
 import numpy as np
@@ -315,3 +319,21 @@ def test_plot_spectra_writes_png(tmp_path):
     width, height = struct.unpack(">II", data[16:24])
     assert (width, height) == (880, 990)  # 8 x 9 in at 110 dpi
     assert [p.name for p in path.parent.iterdir()] == ["spectra.png"]  # no temporary left behind
+
+
+# ---------------------------------------------------------------- import
+
+
+def test_colour_imported_without_its_plotting_package():
+    """A fresh process that imports mlsim.spectra has colour but not matplotlib (colour.plotting would
+    import it: 1.7 s of a dataset worker's first episode); colour.plotting loads on first use, and is
+    then the package itself, whichever way it is reached."""
+    code = ("import sys; import mlsim.spectra, colour; print('matplotlib' in sys.modules); "
+            "f = colour.plotting.plot_single_sd; import colour.plotting as p; from colour.plotting import plot_single_sd; "
+            "print('matplotlib' in sys.modules, p is colour.plotting is sys.modules['colour.plotting'], p.plot_single_sd is f is plot_single_sd, "
+            "p.__file__.endswith('__init__.py'))")
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["False", "True", "True", "True", "True"]

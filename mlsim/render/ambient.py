@@ -66,9 +66,8 @@ LAMP_EFFICACY_LM_PER_W = MappingProxyType({"daylight": 60.0, "white_led": 100.0}
 def radiant_power_w(lamp: str, electrical_w: float, efficacy_lm_per_w: float | None = None) -> float:
     """Radiant power (W, 380-780 nm) of a lamp: P_el x efficacy / K, K the luminous efficacy of its
     spectrum (lm per optical W, :func:`colour.luminous_efficacy`; about 293 for FL1, 319 for LED-B4)."""
-    import colour
-
     from mlsim import spectra
+    from mlsim.spectra import colour  # (imported there without its plotting package: mlsim.spectra._defer_colour_plotting)
 
     if lamp not in LAMP_EFFICACY_LM_PER_W:
         raise ValueError(f"lamp {lamp!r}: choose one of {', '.join(LAMP_EFFICACY_LM_PER_W)}")
@@ -140,9 +139,7 @@ def leaked_photon_sd(lamp: str, absorber: str, absorber_thickness_mm: float | No
     wl = spectra.wavelengths_nm()
     n = np.asarray(spectra.photon_sd(spectra.lamp_sd(lamp)).values, dtype=float)
     t = np.asarray(spectra.absorber_transmittance_sd(absorber, absorber_thickness_mm).values, dtype=float)
-    import colour
-
-    return colour.SpectralDistribution(dict(zip(wl, n * t)), name=f"{lamp} lamp behind absorber {absorber} (photons/s/nm)")
+    return spectra.colour.SpectralDistribution(dict(zip(wl, n * t)), name=f"{lamp} lamp behind absorber {absorber} (photons/s/nm)")
 
 
 def lamp_level(windows_s, flicker_hz: float = 0.0, flicker_depth: float = 0.0, switch_on_s: float | None = None,
