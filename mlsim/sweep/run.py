@@ -14,7 +14,8 @@ direction study, in parallel, resumable, into one folder (orchestration layer).
    with a progress bar (ETA), then writes the report (:mod:`mlsim.sweep.report`).
 
 A load is a scene file whose ``[load]`` replaces the variant's load, with the way it must be stepped
-(``fidelity.solve.substeps`` and ``rod_kinematics``, where the file gives them; the swipe needs both).
+(``fidelity.solve.substeps`` and ``rod_kinematics``, where the file gives them; the swipe needs both) unless
+the variant's scene already steps finer or with richer rod kinematics (:meth:`Load.apply`).
 """
 
 from __future__ import annotations
@@ -62,9 +63,20 @@ class Load:
     solve: dict
 
     def apply(self, scene, outputs: tuple[str, ...]):
-        """The scene under this load."""
+        """The scene under this load. The load's solve settings are what it needs at the least: a scene
+        that steps finer (more ``substeps``) or with richer rod kinematics (``rod_kinematics``, in the
+        order of :data:`fem.rod_kinematics.ROD_KINEMATICS`) keeps its own, so that ``mlsim sweep --set
+        'fidelity.solve.rod_kinematics="cosserat"'`` reaches the swipe, whose file asks for second order."""
+        from fem.rod_kinematics import ROD_KINEMATICS
+
+        own = scene.fidelity.solve
         values = {"load": self.load, "outputs": list(outputs)}
-        values.update({f"fidelity.solve.{k}": v for k, v in self.solve.items()})
+        for k, v in self.solve.items():
+            if k == "substeps" and isinstance(v, int) and own.substeps >= v:
+                continue
+            if k == "rod_kinematics" and v in ROD_KINEMATICS and ROD_KINEMATICS.index(own.rod_kinematics) >= ROD_KINEMATICS.index(v):
+                continue
+            values[f"fidelity.solve.{k}"] = v  # (a value the scene cannot take is refused by with_values, naming the field)
         return scene.with_values(values)
 
 
