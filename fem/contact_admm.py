@@ -49,14 +49,13 @@ References
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 
 from fem import admm_kernels
+from fem.linsolve import one_blas_thread
 from mlsim.errors import SolverError, require_finite
 
 __all__ = ["DenseDelassus", "RodBlockDelassus", "rod_resultant_coupling", "rod_block_compliance", "AdmmInfo", "project_cone", "de_saxce",
@@ -106,22 +105,6 @@ INVERSES_KEPT = 512  # the blocks' explicit inverses, per rho, kept per operator
 
 
 _EMPTY_1D, _EMPTY_2D, _EMPTY_INT = np.zeros(0), np.zeros((0, 0)), np.zeros(0, dtype=np.int64)
-
-
-@functools.cache
-def _blas_pools() -> ThreadpoolController:
-    """The process's BLAS thread pools, found once (``threadpool_limits`` scans the loaded libraries
-    on every call)."""
-    return ThreadpoolController()
-
-
-def _one_blas_thread():
-    """A context on one BLAS thread, for the rod blocks' small dense LAPACK and products (blocks of
-    about 100 x 100). On two threads of a loaded 2-core machine they spent their time waiting for each
-    other: the screw sensor's 25 block eigendecompositions took 3.2 s (0.7 s on a second try), on one
-    thread 28 ms, the same bits. A dataset worker runs on one thread already (its episodes' bits are
-    one thread's); the driver's precompute episode, ``mlsim run`` and the benchmarks ran on all."""
-    return _blas_pools().limit(limits=1, user_api="blas")
 
 
 def _kept(cache: dict, key, make, limit: int):
@@ -278,7 +261,7 @@ class RodBlockDelassus(_Delassus):
             lo, hi = self._starts[a], self._starts[a + 1]
             B = 0.5 * (B + B.T)
             B[np.diag_indices_from(B)] += np.repeat(self.inv_k[lo:hi], 3)
-            with _one_blas_thread():
+            with one_blas_thread():
                 lam, Q = np.linalg.eigh(B)
             if not lam.min() > 0:
                 raise np.linalg.LinAlgError(f"rod block {a} of the Delassus operator is not positive definite (smallest eigenvalue {lam.min():.3g})")
@@ -365,7 +348,7 @@ class RodBlockDelassus(_Delassus):
         C = np.ascontiguousarray(self.blocks[a][np.ix_(idx, idx)])
         B = 0.5 * (C + C.T)
         B[np.diag_indices_from(B)] += np.repeat(self.inv_k[self._starts[a] + local], 3)
-        with _one_blas_thread():
+        with one_blas_thread():
             lam, Q = np.linalg.eigh(B)
         return C, lam, Q
 
@@ -390,7 +373,7 @@ class RodBlockDelassus(_Delassus):
         # Q_a), Y_a = B_a^-1 S_a (S_a sums the block's point forces per axis) and S_a^T Y_a
         Ys, inverses = [], []
         T = np.zeros((3 * self.n_rods, 3 * self.n_rods))
-        with _one_blas_thread():
+        with one_blas_thread():
             for a, (key, lam, Q) in enumerate(zip(self._block_keys, self._eig, self._Q)):
                 (B_flat, Y_a, T_a), _ = _kept(self._inverses, (key, rho), lambda: _block_inverse(lam, Q, rho), INVERSES_KEPT)
                 inverses.append(B_flat)

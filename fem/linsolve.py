@@ -17,12 +17,14 @@ error instead of returning garbage.
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import weakref
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from threadpoolctl import ThreadpoolController
 
 from mlsim.errors import SolverError
 
@@ -219,3 +221,18 @@ def _pardiso_factor(A: sp.csr_matrix, definite: bool, symmetric: bool = True):
     # MKL keeps the factor until phase -1
     weakref.finalize(solve, lambda: call(-1, dummy, dummy))
     return solve
+
+
+@functools.cache
+def blas_pools() -> ThreadpoolController:
+    """The process's BLAS thread pools, found once (threadpoolctl's ``threadpool_limits`` scans the
+    loaded libraries on every call: 0.2 ms, per episode)."""
+    return ThreadpoolController()
+
+
+def one_blas_thread():
+    """A context on one BLAS thread: for small or thin dense work (the rod blocks' LAPACK, tall thin SVDs,
+    the contact steps' products), whose two threads on the shared 2-core machine waited for each other
+    (the screw sensor's 25 rod-block eigendecompositions: 3.2 s on two threads, 28 ms on one), and whose
+    bits then do not depend on the thread count."""
+    return blas_pools().limit(limits=1, user_api="blas")

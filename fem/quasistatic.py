@@ -40,7 +40,6 @@ are backward differences over one step (:class:`Episode`).
 
 from __future__ import annotations
 
-import functools
 import json
 import time
 import weakref
@@ -48,7 +47,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from threadpoolctl import ThreadpoolController
 
 from fem import condensed, contact_admm, field_kernels, fields, rod_exact, rod_kinematics, trajectory
 from fem.episode import (  # the shared pieces, here too for fem.quasistatic's callers
@@ -65,6 +63,7 @@ from fem.episode import (  # the shared pieces, here too for fem.quasistatic's c
     tip_height_m,
 )
 from fem.indenters import Pose
+from fem.linsolve import one_blas_thread
 from fem.nonlinear import SolverError
 from mlsim.errors import OutOfRangeError
 
@@ -313,7 +312,7 @@ class ReducedModel:
             # the patches' responses added in one pass on every core, rounded as numpy's fancy-index
             # add rounds them (field_kernels.add_columns); the (n, b) x (b, k) products on one BLAS
             # thread (thin: on two threads of the shared cores they took twice as long, same bits)
-            with _blas_threads().limit(limits=1, user_api="blas"):
+            with one_blas_thread():
                 SXP, DXP = SX @ Pt, DX @ Pt
             field_kernels.add_columns(stress, touched, SXP)
             field_kernels.add_columns(disp, touched, DXP)
@@ -384,7 +383,7 @@ def far_field_basis(response: np.ndarray, patch_rod: np.ndarray, own_rows: dict,
         # one BLAS thread: a tall, thin SVD (98448 x 21 on the screw sensor) is a few memory-bound
         # passes, and on the 2 shared cores its two threads waited for each other (the screw sensor's
         # stress basis, 25 SVDs: 9.0-11.6 s, 1.5 s on one thread); its bits no longer depend on the thread count
-        with _blas_threads().limit(limits=1, user_api="blas"):
+        with one_blas_thread():
             U, S, Vt = np.linalg.svd(A, full_matrices=False)
         tail = np.sqrt(np.cumsum((S**2)[::-1])[::-1])  # tail[k]: the Frobenius norm left out at rank k
         total = tail[0] if len(tail) else 0.0
@@ -435,13 +434,6 @@ def reduced_fields_of(reduced: "ReducedModel", keep: np.ndarray, rod: np.ndarray
         field_kernels.add_rows(stress, rows_s, own_s @ f_r)
         field_kernels.add_rows(disp, rows_d, own_d @ f_r)
     return stress, disp
-
-
-@functools.cache
-def _blas_threads() -> ThreadpoolController:
-    """The process's BLAS thread pools, found once (threadpoolctl's ``threadpool_limits`` scans the
-    loaded libraries on every call: 0.2 ms, per episode)."""
-    return ThreadpoolController()
 
 
 # ------------------------------------------------------------------------------------ an episode
@@ -643,7 +635,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     # the contact steps are many small dense products (3 m = 1095 on the demo): BLAS threads cost more
     # in synchronisation than they gain there (default demo, linear tier: 93 ms of contact per frame on
     # 2 threads, 68 ms on 1)
-    with _blas_threads().limit(limits=1, user_api="blas"):
+    with one_blas_thread():
         for s, t in enumerate(steps):
             t_step = time.perf_counter()
             state = trajectory.advance(load, state, t, normal_now)
@@ -757,7 +749,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     if settings.tier == "reduced":
         # (its sums run on numba's threads; BLAS's, spinning between its small products, fought them
         # for the two cores: default demo, 15 to 200 ms per episode, where one BLAS thread gives 10)
-        with _blas_threads().limit(limits=1, user_api="blas"):
+        with one_blas_thread():
             stress, disp = reduced_fields_of(reduced, keep, rod, loads[first])
         stress, disp = stress.T.reshape(U, 6, T), disp.T.reshape(U, -1, 3)
         total = forces.sum(axis=1)
@@ -780,7 +772,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             J = len(unit_rods)
             flat = unit.reshape(J * 6, m, 3)
             if settings.tier == "reduced":
-                with _blas_threads().limit(limits=1, user_api="blas"):
+                with one_blas_thread():
                     s_unit, _ = reduced_fields_of(reduced, keep, rod, np.concatenate([flat, np.zeros((1, m, 3))]))
                 s_unit = s_unit.T.reshape(J * 6 + 1, 6, T)
                 s_unit = s_unit[:-1] - s_unit[-1:]  # less the weight's field
