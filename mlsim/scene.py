@@ -545,8 +545,8 @@ class SolveFidelity(_Model):
     # (experimental): also held by the contact's stiffness where it touches (a Robin coupling, fem.rod_exact),
     # so a rod pressed past its free Euler load by a face that grips its tip stands (the tiny scene's flat press
     # at 1 x: 1.4 % off the nonlinear tier in force; the screw scene within 5 % on all four measures). Not yet
-    # robust: on one of two meshes of the default demo its tip displacement was 21.6 % off (a rod left bent
-    # against the lifted face in a release step); the run log says so
+    # robust: on one of two meshes of the default demo its tip displacement was 21.6 % off (rods left bent
+    # against the face by friction in a release step); the run log says so
     rod_coupling: Literal["dead", "held"] = "dead"
     # nonlinear tier: "quasi_static" (each step an equilibrium: no answer past a limit point, where a rod
     # buckles or snaps back) or "backward_euler" (implicit dynamics with the elastomer's inertia and damping,
