@@ -705,8 +705,8 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
             # would bound it at the penalty's stiffness, 100 x the body's at the default penalty, and
             # per point it would sit at the ADMM tolerance's noise). Under-relaxed rounds move only relaxation x
             # what the fixed point's residual would: divided by it, the test is of the residual, not of the damped
-            # step (undivided, the held rods' rounds stopped early: the tiny scene's flat press at 2.4 x the free
-            # Euler load 3.6 % off the nonlinear tier in tip displacement at relaxation 0.3, 8.4 % at 0.15; 1.9 % at both)
+            # step (undivided, the held rods' rounds stopped early: the tiny scene's flat face pressed 1 mm, rods at 1.25 x
+            # the free Euler load, 3.6 % off the nonlinear tier in tip displacement at relaxation 0.3, 8.4 % at 0.15; 1.9 % at both)
             u_full = u + hidden
             moved_h = kin.resultant_change(f - f_lin) / (relaxation or 1.0)
             h_of_f, load = _hidden(kin, G, f, _robin_hold(kin, G, fn > 0.0, hidden, load))

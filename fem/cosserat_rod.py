@@ -65,8 +65,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from threadpoolctl import threadpool_limits
-
+from fem.linsolve import one_blas_thread
 from mlsim.errors import SolverError
 
 #: the largest rotation increment (rad) of a segment in one Newton iteration
@@ -471,9 +470,10 @@ def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0)
     l = section.length_m / state.q.shape[-2]
     tolerances = (force_tol, np.maximum(force_tol * l, 100.0 * eps * section.B.max() / l))
     # the matrices are small (6 N): BLAS threads only fight each other (60x slower on a loaded 2-core machine);
-    # the compiled path calls no BLAS but in its numpy fallback, which sets the limit itself (0.6 ms a call)
+    # the compiled path calls no BLAS but in its numpy fallback, which sets the limit itself (fem.linsolve.one_blas_thread:
+    # the process's thread pools found once; threadpool_limits scanned them on every call, 0.6 ms)
     newton = _newton_compiled if compiled else _newton
-    with contextlib.nullcontext() if compiled else threadpool_limits(1, user_api="blas"):
+    with contextlib.nullcontext() if compiled else one_blas_thread():
         for k in range(1, increments + 1):
             part = None if loads is None else loads.scaled(k / increments)
             state = newton(state, section, clamp, F * k / increments, M * k / increments, tolerances, max_iterations,
@@ -500,7 +500,7 @@ def _newton_compiled(state: RodState, section: RodSection, clamp, F, M, toleranc
     if rest.size:
         springs = (None, None) if loads is None or loads.stiffness_n_m is None else (stiffness, anchor)
         part = None if loads is None else PointLoads(seg, along, offset, force, *springs).take(rest)
-        with threadpool_limits(1, user_api="blas"):  # small matrices: BLAS threads only fight each other
+        with one_blas_thread():  # small matrices: BLAS threads only fight each other
             done = _newton(RodState(x[rest], q[rest]), section, clamp_f[rest], F_f[rest], M_f[rest], (tol_f[rest], tol_m[rest]),
                            max_iterations, where, part)
         x[rest], q[rest] = done.x, done.q

@@ -50,16 +50,16 @@ their solves (``fidelity.solve.rod_coupling``):
   put it. At the rounds' fixed point the rods sit there and the springs carry nothing, so the answer is the
   dead-load one; before it, the springs hold what the contact holds, and a rod pressed past its free Euler
   load by a face that grips its tip stands: the tiny scene's flat press at 1 x is 1.9 / 1.4 / 1.5 % off the
-  nonlinear tier (rod-base von Mises, force, tip displacement), and the screw scene 2.9 / 2.4 / 5.0 % (photons 2.2 %). The springs' pull
-  enters the linear rod and the P-delta moment as its resultant about the bent rod's tip (:meth:`_rod_answers`);
-  the rounds are under-relaxed (``round_relaxation``) to ``round_rtol`` of their residual. Not yet robust: on
+  nonlinear tier (rod-base von Mises, force, tip displacement), and the screw scene 2.9 / 2.4 / 5.0 % (photons
+  2.2 %). The springs' pull enters the linear rod and the P-delta moment as its resultant about the bent rod's
+  tip (:meth:`_rod_answers`); the rounds are under-relaxed (``round_relaxation``) to ``round_rtol`` of their residual. Not yet robust: on
   the default demo 6.7 / 5.8 / 6.0 % off on one mesh realisation, 11.4 / 4.7 / 21.6 % on another, where after
   the second release step three rods stay bent against the face by friction (the reference lets go; the tip
-  within 9 % in the other frames but one, 25 %). Why the rounds need that much damping: their gain grows with the contact's penalty
-  (rounds that took one rod Newton step each converged at a tenth of it and diverged at the default), the
-  contact pinning the tip face's points against the rods' nonlinear part, which the Delassus operator does not
-  see. Putting the rods' dead-load tangent compliance into that operator (tried) is no cure: past the free
-  Euler load it is negative, the operator indefinite. The cure is the nonlinear tier's: the rods' nonlinear
+  within 9 % in the other frames but one, 25 %). Why the rounds need that much damping: their gain grows with
+  the contact's penalty (rounds that took one rod Newton step each converged at a tenth of it and diverged at
+  the default), the contact pinning the tip face's points against the rods' nonlinear part, which the Delassus
+  operator does not see. Putting the rods' dead-load tangent compliance into that operator (tried) is no cure:
+  past the free Euler load it is negative, the operator indefinite. The cure is the nonlinear tier's: the rods' nonlinear
   internal forces as loads on the linear body, so one operator carries both (docs/stages/solve.md).
 
 The rods' axial law is neo-Hookean (:data:`AXIAL_LAW`, :func:`fem.cosserat_rod.axial_force`), as the nonlinear
@@ -183,7 +183,8 @@ class CosseratKinematics:
     #: fixed point's residual), is ROUND_RTOL of the total normal force (second order's 1e-2 left the tiny scene's
     #: flat press 11 % off in tip displacement, 1e-3 1.9 %), in at most MAX_ROUNDS rounds. On one mesh of the
     #: default demo at 0.3 a held rod (13, at 2.3 x its free Euler load) buckled sideways in its solve (tip
-    #: displacement 86 % off); at 0.15 none did (21.6 %: within 9 % in all frames but two, 25 % in one and the last release frame)
+    #: displacement 86 % off); at 0.15 none did (21.6 %: within 9 % in all frames but two, 25 % in one and the
+    #: last release frame)
     round_relaxation = 0.15
     round_rtol = 1e-3
     max_rounds = 60
