@@ -111,6 +111,21 @@ BODY_FIELDS = (
 
 
 
+#: the solve's fields that only the linear tiers read, and those that only the nonlinear tier reads
+#: (fem.quasistatic, fem.finite_strain): each tier's cached episode is kept whatever the others' are
+LINEAR_TIERS_ONLY = tuple(f"fidelity.solve.{f}" for f in ("rod_kinematics", "rod_coupling", "buckling_limit", "small_strain_limit",
+                                                            "contact_solver", "patches_per_tip", "patches_per_side"))
+NONLINEAR_TIER_ONLY = tuple(f"fidelity.solve.{f}" for f in ("nonlinear_newton", "dynamics", "loss_factor", "steps_per_period"))
+
+
+def _solve_ignores(scene: Scene) -> tuple[str, ...]:
+    """The solve fields this scene's tier does not read (Stage.ignores): the reduced tier reads its patches."""
+    tier = scene.fidelity.solve.tier
+    if tier == "nonlinear":
+        return LINEAR_TIERS_ONLY
+    return NONLINEAR_TIER_ONLY + (("fidelity.solve.patches_per_tip", "fidelity.solve.patches_per_side") if tier == "linear" else ())
+
+
 _solve_save, _solve_load = npz_io("episode.npz", "fem.quasistatic:Episode")
 _reduced_save, _reduced_load = npz_io("reduced.npz", "fem.quasistatic:ReducedModel")
 
@@ -276,6 +291,7 @@ SOLVE = Stage(
     needs=("mesh",),
     version="18",  # 2: the reduced tier's contact on each rod's point compliance; 3: its rod sections observed exactly; 4: the nonlinear tier's condensed Newton; 5: the reduced tier's contact point by point and its far field in low rank (issue 15); 6: the reduced tier's rho ladder from the sensor's contact operator, the condensed Newton the nonlinear default; 7: the linear tiers' geometric error estimate from the episode's own field; 8: the reduced tier's rod blocks in float32 for loose solves, 600 ADMM iterations per linearisation; 9: Anderson acceleration on the ADMM map's Douglas-Rachford state, MKL PARDISO in its reproducible mode; 10: the nonlinear tier's condensed Newton relinearised at a step it cannot do; 11: the reduced tier's far field read without its entries below 1e-3 of each basis vector's largest; 12: second-order rod kinematics refuse a rod past half its Euler buckling load (fidelity.solve.buckling_limit); 13: the nonlinear tier's implicit dynamics (fidelity.solve.dynamics) and its one full-step Newton for dead loads; 14: the nonlinear tier's condensed Newton solves its contact loosely while far from balance and keeps a fresh linearisation under dynamics; 15: its contact solves linearised at the last iterate (the start kept for points an iterate carried off the indenter), a failed step retried following its iterates; 16: its outer iteration to a relative residual of 1e-4 (was 1e-6), a quasi-static step following its iterates before a fresh linearisation; 17: Cosserat rods' axial law neo-Hookean and their section stress Cauchy's, fidelity.solve.rod_coupling ("held": the rods held by the contact in their solves, a Robin coupling); 18: the Cosserat rods' rounds tested on their residual (the force a round moves over its relaxation), held rounds relaxed by 0.15 in up to 60 rounds
     run=_solve_run,
+    ignores=_solve_ignores,
     save=_solve_save,
     load=_solve_load,
     write=_solve_write,

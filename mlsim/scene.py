@@ -688,12 +688,25 @@ class Scene(_Model):
         """The resolved material of a region (``core``, ``ml_layer``, ``absorber``)."""
         return resolve_material(getattr(self.sensor.materials, region), self.materials)
 
-    def content_hash(self, paths: tuple[str, ...] | None = None) -> str:
-        """SHA-256 of the canonical JSON of the whole scene, or of the given dotted fields only."""
+    def content_hash(self, paths: tuple[str, ...] | None = None, exclude: tuple[str, ...] = ()) -> str:
+        """SHA-256 of the canonical JSON of the whole scene, or of the given dotted fields only; ``exclude``:
+        dotted fields inside those left out (a section's entries: "fidelity.solve.rod_kinematics" inside
+        "fidelity.solve")."""
         if paths is None:
             payload = self.model_dump(mode="json")
         else:
             payload = {p: _jsonable(self.get(p)) for p in sorted(paths)}
+        for field in exclude:
+            if paths is not None:
+                payload.pop(field, None)
+            for p in payload if paths is not None else ():
+                if field.startswith(p + "."):
+                    node = payload[p]
+                    *path, last = field[len(p) + 1 :].split(".")
+                    for key in path:
+                        node = node.get(key, {}) if isinstance(node, dict) else {}
+                    if isinstance(node, dict):
+                        node.pop(last, None)
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
     def to_dotted(self) -> dict[str, Any]:

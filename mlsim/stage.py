@@ -51,6 +51,10 @@ class Stage:
     load: Callable[[Path], Any] | None = None
     write: Callable[..., list[Path]] | None = None
     summarize: Callable[[Any], dict] | None = None
+    #: ignores(scene) -> dotted fields inside ``reads`` that this scene's run does not read (the nonlinear tier
+    #: does not read the linear tiers' rod kinematics): left out of the key, so that setting them does not
+    #: recompute a cached result that they cannot change
+    ignores: Callable[[Any], tuple[str, ...]] | None = None
 
 
 @dataclass(frozen=True)
@@ -148,7 +152,7 @@ def outputs(kind_name: str = DEFAULT_KIND) -> tuple[str, ...]:
 
 def stage_key(scene, name: str, _memo: dict | None = None) -> str:
     """Content hash of what a stage's result depends on: its code version, the scene fields it
-    reads and, recursively, the keys of the stages it needs."""
+    reads (less those it ``ignores`` for this scene) and, recursively, the keys of the stages it needs."""
     cache = {} if _memo is None else _memo
     if name in cache:
         return cache[name]
@@ -156,7 +160,7 @@ def stage_key(scene, name: str, _memo: dict | None = None) -> str:
     payload = {
         "stage": name,
         "version": stage.version,
-        "reads": scene.content_hash(stage.reads),
+        "reads": scene.content_hash(stage.reads, exclude=stage.ignores(scene) if stage.ignores is not None else ()),
         "needs": {n: stage_key(scene, n, cache) for n in stage.needs},
     }
     cache[name] = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()

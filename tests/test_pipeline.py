@@ -60,6 +60,29 @@ def test_keys_follow_exactly_the_fields_a_stage_reads():
     assert invalidated(scene, scene.with_values({"fidelity.solve.substeps": 2})) == ["solve", "emission", "render", "camera", "dllm", "classify"]
 
 
+def test_a_tier_keeps_its_episode_when_fields_it_does_not_read_change():
+    # `mlsim accuracy --set 'fidelity.solve.rod_kinematics="cosserat"'` re-ran the nonlinear reference (ten
+    # minutes on the demo) although that tier does not read the linear tiers' rod kinematics
+    scene = load_scene(DEFAULT)
+    nonlinear = scene.with_values({"fidelity.solve.tier": "nonlinear"})
+    key = stage_key(nonlinear, "solve")
+    for field, value in (("fidelity.solve.rod_kinematics", "cosserat"), ("fidelity.solve.rod_coupling", "held"),
+                         ("fidelity.solve.buckling_limit", 2.0), ("fidelity.solve.small_strain_limit", 1.0),
+                         ("fidelity.solve.contact_solver", "newton"), ("fidelity.solve.patches_per_tip", 3)):
+        assert stage_key(nonlinear.with_values({field: value}), "solve") == key, field
+    # what it reads still counts: its Newton, its damping, its contact
+    for field, value in (("fidelity.solve.nonlinear_newton", "penalty"), ("fidelity.solve.loss_factor", 0.2),
+                         ("fidelity.solve.penalty_factor", 50.0), ("fidelity.solve.substeps", 2)):
+        assert stage_key(nonlinear.with_values({field: value}), "solve") != key, field
+    linear = scene.with_values({"fidelity.solve.tier": "linear"})
+    key = stage_key(linear, "solve")
+    assert stage_key(linear.with_values({"fidelity.solve.loss_factor": 0.2}), "solve") == key
+    assert stage_key(linear.with_values({"fidelity.solve.patches_per_tip": 3}), "solve") == key  # the reduced tier's
+    assert stage_key(linear.with_values({"fidelity.solve.rod_kinematics": "cosserat"}), "solve") != key
+    reduced = scene.with_values({"fidelity.solve.tier": "reduced"})
+    assert stage_key(reduced.with_values({"fidelity.solve.patches_per_tip": 3}), "solve") != stage_key(reduced, "solve")
+
+
 _PROBE = """
 import json, sys
 from mlsim import pipeline
