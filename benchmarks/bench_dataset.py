@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_dataset.py [--spec scenes/interactions/paper.toml] [--workers 2]
         [--executor local|ray] [--out out/bench_dataset] [--keep] [--set samples_per_action=4]
-        [--no-train] [--alone N]
+        [--chain per_episode|batched] [--device auto|cpu|cuda] [--no-train] [--alone N]
 
 Generates the spec's dataset from scratch (8 actions x 100 samples by 10 people for the paper
 spec; ``--set samples_per_action=4 --set people=2`` for a few minutes' run) with the sensor's
@@ -67,6 +67,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "out" / "bench_dataset"))
     ap.add_argument("--keep", action="store_true", help="keep an existing dataset in --out (resume) instead of starting afresh")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=INT", help="a spec's integer field for this run (samples_per_action, people)")
+    ap.add_argument("--chain", choices=["per_episode", "batched"], help="the spec's chain for this run")
+    ap.add_argument("--device", choices=["auto", "cpu", "cuda"], help="the spec's device for this run (the batched chain's)")
     ap.add_argument("--no-train", action="store_true", help="generation only")
     ap.add_argument("--alone", type=int, default=0, metavar="N", help="also N episodes in one worker on its own, stage by stage")
     args = ap.parse_args(argv)
@@ -76,6 +78,7 @@ def main(argv=None) -> int:
     from mlsim.dataset.spec import load_dataset_spec
 
     overrides = {k: int(v) for k, v in (s.split("=", 1) for s in args.set)}
+    overrides |= {k: getattr(args, k) for k in ("chain", "device") if getattr(args, k)}
     spec, base = load_dataset_spec(args.spec, overrides)
     out = Path(args.out)
     if out.exists() and not args.keep:
