@@ -52,6 +52,14 @@ def stage_table(episode_attrs: list[dict]) -> dict:
     return rows
 
 
+def _cpu_s() -> dict:
+    """CPU seconds (user + system) of this process and of its children that have ended (a local pool's workers, once shut down)."""
+    import resource
+
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {"driver": own.ru_utime + own.ru_stime, "workers": children.ru_utime + children.ru_stime}
+
+
 def _alone(spec: str, episodes: int) -> dict:
     """bench_episode_stages's figures for ``episodes`` episodes (one worker, one thread, in a subprocess)."""
     cmd = [sys.executable, str(ROOT / "benchmarks" / "bench_episode_stages.py"), "--json-only", "--spec", spec, "--episodes", str(episodes)]
@@ -84,7 +92,9 @@ def main(argv=None) -> int:
     if out.exists() and not args.keep:
         shutil.rmtree(out)
     t0 = time.perf_counter()
+    cpu0 = _cpu_s()
     summary = generate(spec, base, out, workers=args.workers, executor=args.executor, progress=True, log=print)
+    cpu = {k: v - cpu0[k] for k, v in _cpu_s().items()}
     total = time.perf_counter() - t0
     attrs = [store.read_episode(out, e, ()) for e in sorted(store.complete_episodes(out))]
     frames = sum(a["n_frames"] for a in attrs)
@@ -100,6 +110,9 @@ def main(argv=None) -> int:
         "episodes_per_s": summary["episodes_per_s"], "frames_per_s": summary["frames_per_s"],
         "worker_s_per_episode_median": summary["worker_s_per_episode_median"],
         "ms_per_frame_in_dataset": inside, "worker_slot_ms_per_frame": round(per_frame_slot_ms, 3) if per_frame_slot_ms else None,
+        # CPU seconds of the driver and of its (reaped) local workers over the whole run, the driver's precompute episode included
+        "cpu_s": {k: round(v, 2) for k, v in cpu.items()},
+        "cpu_ms_per_frame": round(1e3 * (cpu["driver"] + cpu["workers"]) / frames, 3) if frames else None,
     }
     alone = None
     if args.alone:
@@ -138,6 +151,10 @@ def main(argv=None) -> int:
             line += f" {fmt(alone[s][0]):>11s} {fmt(alone[s][1]):>12s}"
         print(line)
     print(f"{'dataset wall x workers':16s} {fmt(report['worker_slot_ms_per_frame']):>15s}   (all a worker's core does per frame, the driver's share included)")
+    if args.executor == "local" and report["cpu_ms_per_frame"]:
+        # on a shared machine the wall clock measures the other load too; the CPU seconds are what this run cost
+        print(f"CPU per frame, driver and workers: {report['cpu_ms_per_frame']:.2f} ms (driver {cpu['driver']:.1f} s, workers {cpu['workers']:.1f} s): "
+              f"{args.workers} free cores at that cost make at most {1e3 * args.workers / report['cpu_ms_per_frame']:.0f} frames/s")
     print(f"generation: {summary['episodes_run_now']} episodes, {frames} frames in {summary['episodes_wall_s']:.1f} s: {summary['frames_per_s']} frames/s "
           f"({summary['episodes_per_s']} episodes/s; precompute {summary['precompute_s']} s; targets: paper spec < 900 s, 300 frames/s)")
     for n, t in report.get("train", {}).items():

@@ -10,8 +10,11 @@
 3. the driver runs the sensor's precomputes once (mesh, reduced model, transport matrix, calibration
    frame; cached on disk, and listed there for the next run of the same sensor and interaction, which
    then skips this step while they are all still cached), then the workers run the episodes (:func:`run_episode_job`: the pipeline
-   to the DLLM at the base scene's tiers, single-threaded), and the driver writes each episode as
-   it arrives, atomically (:mod:`mlsim.dataset.store`), with a progress bar (rate and ETA);
+   to the DLLM at the base scene's tiers, single-threaded; with the spec's ``chain = "batched"``,
+   :func:`run_batch_job`: ``batch_episodes`` episodes solved one by one, then the chain after the
+   solve for all of them at once on the spec's ``device``, :mod:`mlsim.dataset.batched`), and the
+   driver writes each episode as it arrives, atomically (:mod:`mlsim.dataset.store`), with a
+   progress bar (rate and ETA);
 4. an episode that raises (a refused load, a ``SolverError``) or whose worker process is killed (the
    kernel's out-of-memory killer, any signal) is recorded in ``DIR/failures.json`` with its reason
    (:func:`mlsim.dataset.store.write_failures`) and the others go on; nothing of it is stored, so
