@@ -166,3 +166,47 @@ def test_a_spec_at_the_default_chain_hashes_as_before(tmp_path):
     assert spec.content_hash() == explicit.content_hash()
     batched, _ = load_dataset_spec(write_tiny_spec(tmp_path, 'chain = "batched"\n'))
     assert batched.content_hash() != spec.content_hash()
+
+
+REFUSED = "push_00000"
+_REAL_BATCH_JOB = gen.run_batch_job
+
+
+def _batch_with_a_refused_solve(batch: dict) -> dict:
+    """The real batch job, with REFUSED's solve refused (as a SolverError would): patched inside the
+    job, because the workers are spawned processes that import this module by name."""
+    from mlsim import pipeline
+
+    real_run = pipeline.run
+
+    def run(scene, *args, **kwargs):
+        if scene.name == REFUSED:
+            raise ValueError(f"episode {REFUSED}: the load is refused (made to fail by the test)")
+        return real_run(scene, *args, **kwargs)
+
+    pipeline.run = run
+    try:
+        return _REAL_BATCH_JOB(batch)
+    finally:
+        pipeline.run = real_run
+
+
+def test_an_episode_whose_solve_fails_is_recorded_and_its_batch_stored(noiseless, tmp_path, monkeypatch):
+    """One batch of two episodes, one solve refused: the other episode is stored as the per-episode
+    chain stores it, the refused one recorded with its reason; the rerun runs only it."""
+    per, _, _ = noiseless
+    spec, base = load_dataset_spec(write_tiny_spec(tmp_path, 'chain = "batched"\n'))
+    out = tmp_path / "data"
+    monkeypatch.setattr(gen, "run_batch_job", _batch_with_a_refused_solve)
+    lines: list[str] = []
+    summary = gen.generate(spec, base, out, workers=1, progress=False, log=lines.append)
+    assert store.complete_episodes(out) == {"sliding_left_00000"} and summary["episodes_failed"] == 1
+    assert store.read_failures(out)[REFUSED] == {"kind": "error", "error_type": "ValueError",
+                                                 "message": f"episode {REFUSED}: the load is refused (made to fail by the test)"}
+    assert any("1 episode failed" in m and REFUSED in m for m in lines)
+    monkeypatch.setattr(gen, "run_batch_job", _REAL_BATCH_JOB)
+    rerun = gen.generate(spec, base, out, workers=1, progress=False, log=lambda m: None)
+    assert rerun["episodes_run_now"] == 1 and rerun["complete"] and not store.read_failures(out)
+    for e in ("sliding_left_00000", REFUSED):
+        a, b = store.read_episode(per, e), store.read_episode(out, e)
+        assert a["dllm_features"].tobytes() == b["dllm_features"].tobytes() and a["frames"].tobytes() == b["frames"].tobytes(), e

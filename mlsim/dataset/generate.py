@@ -309,7 +309,9 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
         + (f" ({retried} that failed before)" if retried else "") + f" on {workers} {executor} worker(s)")
     common = {"base_scene": base.model_dump(mode="json"), "interaction": spec.interaction.model_dump(mode="json"),
               "cache_dir": str(cache.root), "store_frames": spec.store_frames}
-    log(f"[dataset] chain: batched, {spec.batch_episodes} episodes per batch, on {device} ({why})" if spec.chain == "batched" else
+    # on the CPU the batched chain runs slower than the per-episode one (docs/uses/datasets.md): the log says so
+    slower = "; on the CPU it is slower than chain = per_episode" if device == "cpu" else ""
+    log(f"[dataset] chain: batched, {spec.batch_episodes} episodes per batch, on {device} ({why}){slower}" if spec.chain == "batched" else
         "[dataset] chain: per_episode on the CPU (chain = per_episode, the default and the reference)")
     t_start = time.perf_counter()
     precompute_s = 0.0
@@ -343,6 +345,7 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     attempted = {j["episode_id"] for j in todo}
     # the failures of earlier runs that this run does not retry (a --limit) stay recorded
     failures = {k: v for k, v in earlier_failures.items() if k not in attempted}
+
     def record_failure(episode_id: str, kind: str, error_type: str, message: str, reason: str) -> None:
         failures[episode_id] = {"kind": kind, "error_type": error_type, "message": message[:2000]}
         log(f"[dataset] episode {episode_id} failed: {reason[:300]}")
@@ -366,7 +369,8 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
                                                on_failure="record"):
                 if isinstance(result, JobFailed):  # the chain raised, or the worker died: every episode of the batch
                     for job in batch["jobs"]:
-                        record_failure(job["episode_id"], result.kind, result.error_type, result.message, f"(its batch {batch['episode_id']}) {result.reason}")
+                        record_failure(job["episode_id"], result.kind, result.error_type, result.message,
+                                       f"(its batch {batch['episode_id']}) {result.reason}")
                     continue
                 for episode_id, f in result["failures"].items():
                     record_failure(episode_id, "error", f["error_type"], f["message"], f"{f['error_type']}: {f['message']}")
