@@ -147,9 +147,9 @@ def test_a_noiseless_cuda_dataset_is_the_per_episode_dataset(noiseless, tmp_path
 def test_chain_settings_are_validated_naming_the_field_and_the_fix(tmp_path):
     with pytest.raises(SceneError, match=r"chain.*'per_episode'.*'batched'"):
         load_dataset_spec(write_tiny_spec(tmp_path, 'chain = "gpu"\n'))
-    with pytest.raises(SceneError, match='device = "cuda" is the batched chain\'s: set chain = "batched"'):
+    with pytest.raises(SceneError, match='device = \'cuda\': the batched chain\'s device: set chain = "batched"'):
         load_dataset_spec(write_tiny_spec(tmp_path, 'device = "cuda"\n'))
-    with pytest.raises(SceneError, match=r'chain = "batched" runs batches of one sensor.*remove \[randomize\]'):
+    with pytest.raises(SceneError, match=r"chain = 'batched': runs batches of one sensor.*remove \[randomize\]"):
         load_dataset_spec(write_tiny_spec(tmp_path, 'chain = "batched"\n[randomize]\n"camera.gain_db" = [0.0, 6.0]\n'))
     path = write_tiny_spec(tmp_path, 'chain = "batched"\n')
     (tmp_path / "tiny.toml").write_text((tmp_path / "tiny.toml").read_text().replace('tier = "deformed"', 'tier = "transport"'))

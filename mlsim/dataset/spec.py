@@ -99,15 +99,6 @@ class DatasetSpec(_Model):
         return actions
 
     @model_validator(mode="after")
-    def _chain_fits(self):
-        if self.chain == "per_episode" and self.device == "cuda":
-            raise ValueError('device = "cuda" is the batched chain\'s: set chain = "batched" (or device = "auto")')
-        if self.chain == "batched" and self.randomize:
-            raise ValueError('chain = "batched" runs batches of one sensor, and [randomize] draws a sensor per episode: '
-                             'set chain = "per_episode" or remove [randomize]')
-        return self
-
-    @model_validator(mode="after")
     def _spread(self):
         if self.samples_per_action < self.people:
             raise ValueError(f"samples_per_action = {self.samples_per_action} is below people = {self.people}: every person needs a sample "
@@ -124,9 +115,24 @@ class DatasetSpec(_Model):
 
 def dataset_spec_from_dict(data: dict, source: str | None = None) -> DatasetSpec:
     try:
-        return DatasetSpec.model_validate(data)
+        spec = DatasetSpec.model_validate(data)
     except ValidationError as exc:
         raise SceneError(_problems_from_pydantic(exc), source=source) from None
+    problems = _chain_problems(spec)
+    if problems:
+        raise SceneError(problems, source=source)
+    return spec
+
+
+def _chain_problems(spec: DatasetSpec) -> list[Problem]:
+    """The chain's settings that do not fit together, each naming its field and the fix."""
+    problems = []
+    if spec.chain == "per_episode" and spec.device == "cuda":
+        problems.append(Problem("device", spec.device, 'the batched chain\'s device: set chain = "batched" (or device = "auto")'))
+    if spec.chain == "batched" and spec.randomize:
+        problems.append(Problem("chain", spec.chain, "runs batches of one sensor, and [randomize] draws a sensor per episode: "
+                                'set chain = "per_episode" or remove [randomize]'))
+    return problems
 
 
 def load_dataset_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[DatasetSpec, Scene]:
