@@ -92,6 +92,7 @@ __all__ = [
     "CameraParams",
     "Camera",
     "capture",
+    "capture_mono",
     "frame_times_s",
     "exposure_windows_s",
     "magnification_from_focus",
@@ -408,20 +409,27 @@ def _exposure_config(hw, k, dark, sigma_r, fw, bayer, noise, rel, threshold, dty
     )
 
 
-def _expose_frame(rad: np.ndarray, rng: np.random.Generator, cfg: _Exposure) -> np.ndarray:
-    """:func:`expose_electrons` of one validated frame (H, W, 3)."""
+def _expose_frame(rad: np.ndarray, rng: np.random.Generator, cfg: _Exposure, mono_k=None) -> np.ndarray:
+    """:func:`expose_electrons` of one validated frame (H, W, 3); with ``mono_k`` (3,) float32, of
+    the frame ``rad[..., None] * mono_k`` from its mono radiance ``rad`` (H, W), the Bayer sensor's
+    one channel per photosite only (:func:`capture_mono`)."""
     k, dtype = cfg.k, cfg.dtype
     # mean electrons; a radiance near the float maximum may overflow to inf here, which the cap
     # below turns back into a finite, saturating value
     with np.errstate(over="ignore"):
         if cfg.bayer:
-            mu = np.empty(rad.shape[:-1], dtype)
+            mu = np.empty(rad.shape[:2], dtype)
             for r0, c0, ch in _RGGB:
-                np.multiply(rad[r0::2, c0::2, ch], k, out=mu[r0::2, c0::2], casting="same_kind")
+                site = mu[r0::2, c0::2]
+                if mono_k is None:
+                    np.multiply(rad[r0::2, c0::2, ch], k, out=site, casting="same_kind")
+                else:  # the channel's radiance rounded as the (H, W, 3) product rounds it, then the same product
+                    np.multiply(rad[r0::2, c0::2], mono_k[ch], out=site, casting="same_kind")
+                    np.multiply(site, k, out=site, casting="same_kind")
             if cfg.rel is not None:
                 mu *= cfg.rel
         else:
-            mu = np.multiply(rad, k, dtype=dtype)
+            mu = np.multiply(rad if mono_k is None else rad[..., None] * mono_k, k, dtype=dtype)
             if cfg.rel is not None:
                 mu *= cfg.rel[..., None]
     if cfg.dark:
@@ -695,22 +703,52 @@ def capture(radiance, rng: np.random.Generator, params: CameraParams, *, noise: 
         EXACT_POISSON_BELOW_E2,
         np.float32,
     )
-    gain = np.float32(params.effective_conversion_gain_dn_per_e * 10.0 ** (params.gain_db / 20.0))
-    to8 = np.float32(2.0 ** (8 - params.adc_bits))  # exact: floor(DN / 2^(bits - 8)) of integer DN
     frames = rad[None] if rad.ndim == 3 else rad
     out = np.empty(frames.shape[:-1] + (3,), np.uint8)
     # frame by frame (same bytes as expose_electrons -> digitize -> to_8bit -> demosaic_rggb)
     for b in range(frames.shape[0]):
-        x = _expose_frame(frames[b], rng, cfg)
-        x *= gain
-        _adc_inplace(x, params.black_level_dn, params.adc_bits)
-        x *= to8
-        np.floor(x, out=x)
-        if params.bayer:
-            cv2.cvtColor(x.astype(np.uint8), _CV_RGGB2RGB, dst=out[b])
-        else:
-            out[b] = x
+        _read_out(_expose_frame(frames[b], rng, cfg), params, out[b])
     return out[0] if rad.ndim == 3 else out
+
+
+def capture_mono(radiance, k, rng: np.random.Generator, params: CameraParams, *, noise: bool = True, relative_illumination=None) -> np.ndarray:
+    """:func:`capture` of the frames ``radiance[..., None] * k``, byte for byte, from the mono
+    radiance (H, W) or (B, H, W) float32 and the channels' factors k (3,) float32 (a light of one
+    spectrum: the ML layer's). The Bayer sensor reads one channel per photosite, so only that one
+    is formed: the (H, W, 3) product and its check cost 1.6 ms a 350 x 350 frame (numpy's
+    broadcast over a last axis of 3), most of the camera stage."""
+    rad = np.asarray(radiance)
+    k = np.asarray(k)
+    if rad.dtype != np.float32 or k.dtype != np.float32 or k.shape != (3,) or rad.ndim not in (2, 3) or not params.bayer:
+        return capture(rad[..., None] * k, rng, params, noise=noise, relative_illumination=relative_illumination)
+    frames = rad[None] if rad.ndim == 2 else rad
+    # what capture's check of the (H, W, 3) product would refuse (NaN, inf, < 0, or a product that overflows)
+    with np.errstate(over="ignore"):
+        overflows = frames.size == 0 or not np.isfinite(frames.max() * k.max())
+    if overflows or not (frames.min() >= 0 and k.min() >= 0):
+        return capture(rad[..., None] * k, rng, params, noise=noise, relative_illumination=relative_illumination)
+    if relative_illumination is None:
+        relative_illumination = params.relative_illumination()
+    cfg = _exposure_config(frames.shape[1:], params.electrons_per_radiance_m2_sr_s, params.dark_electrons, params.effective_read_noise_e,
+                           params.effective_full_well_e, params.bayer, noise, relative_illumination, EXACT_POISSON_BELOW_E2, np.float32)
+    out = np.empty(frames.shape + (3,), np.uint8)
+    for b in range(frames.shape[0]):
+        _read_out(_expose_frame(frames[b], rng, cfg, mono_k=k), params, out[b])
+    return out[0] if rad.ndim == 2 else out
+
+
+def _read_out(x: np.ndarray, params: CameraParams, out: np.ndarray) -> None:
+    """Electrons (H, W) float32 -> gain, ADC, 8 bits, demosaic into ``out`` (H, W, 3) uint8 (x is overwritten)."""
+    gain = np.float32(params.effective_conversion_gain_dn_per_e * 10.0 ** (params.gain_db / 20.0))
+    to8 = np.float32(2.0 ** (8 - params.adc_bits))  # exact: floor(DN / 2^(bits - 8)) of integer DN
+    x *= gain
+    _adc_inplace(x, params.black_level_dn, params.adc_bits)
+    x *= to8
+    np.floor(x, out=x)
+    if params.bayer:
+        cv2.cvtColor(x.astype(np.uint8), _CV_RGGB2RGB, dst=out)
+    else:
+        out[...] = x
 
 
 class Camera:
@@ -731,6 +769,14 @@ class Camera:
                 "render at the camera's height_px x width_px"
             )
         return capture(radiance, rng, p, noise=noise, relative_illumination=self._relative_illumination)
+
+    def mono(self, radiance, k, rng: np.random.Generator, *, noise: bool = True) -> np.ndarray:
+        """:func:`capture_mono`: ``self(radiance[..., None] * k, rng)`` byte for byte, from the mono radiance (H, W)."""
+        p = self.params
+        if np.shape(radiance)[-2:] != (p.height_px, p.width_px):
+            raise ValueError(f"radiance is {' x '.join(map(str, np.shape(radiance)[-2:]))} px (H x W) but the camera is {p.height_px} x "
+                             f"{p.width_px}: render at the camera's height_px x width_px")
+        return capture_mono(radiance, k, rng, p, noise=noise, relative_illumination=self._relative_illumination)
 
     def frame_times_s(self, n_frames: int) -> np.ndarray:
         return frame_times_s(n_frames, self.params.fps)

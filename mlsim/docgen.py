@@ -324,7 +324,8 @@ def validation_reference() -> str:
 
 #: benchmarks that ``make bench`` leaves out (each over ~10 minutes on 2 cores, or needs a GPU): run them by name.
 SLOW_BENCHMARKS: dict[str, str] = {
-    "bench_dataset.py": "the paper-sized dataset (800 episodes; its target is under 15 min on 2 cores) and the CNNs' training",
+    "bench_dataset.py": "the paper-sized dataset (800 episodes; its target is under 15 min on 2 cores) and the CNNs' training; "
+                        "--set samples_per_action=4 --set people=2 --no-train --alone 8: the per-stage table in about 2 min",
     "bench_sweep.py": "the 5-point height sweep from an empty cache: 9-15 min on 2 cores, mostly fTetWild",
     "direction_scatter.py": "the direction study rerun once per cause of scatter (each a full study)",
     "bench_solvers.py": "every sparse solver on the default sensor's matrices, each in its own process: about 6.5 min",

@@ -52,6 +52,13 @@ def dataset_plan(spec, base, out: Path, workers: int, executor: str) -> int:
     print(f"dataset {spec.name}: {len(jobs)} episodes ({', '.join(f'{a} {n}' for a, n in per_action.items())}) by {len(people)} people, "
           f"seed {spec.seed}, base scene {base.name} (solve tier {base.fidelity.solve.tier}, render tier {base.fidelity.render.tier})")
     print(f"  {len(done)} already stored in {out}, {len(todo)} to run on {workers} {executor} worker(s); frames stored: {spec.store_frames}")
+    if spec.chain == "batched":  # the device as the run would resolve it here ("cuda" without one raises, as the run would)
+        from mlsim.dataset.batched import resolve_device
+
+        device, why = resolve_device(spec.device)
+        print(f"  chain: batched, {spec.batch_episodes} episodes per batch, on {device} ({why})")
+    else:
+        print("  chain: per_episode on the CPU (the default and the reference)")
     return 0
 
 

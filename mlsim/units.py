@@ -78,6 +78,7 @@ DIMENSIONLESS: dict[str, str] = {
     "transport_drop": "a fraction of the largest entry", "direct_samples_per_side": "samples per pixel side",
     "max_depth": "path vertices", "rr_depth": "path vertices", "profile_points": "a count",
     "people": "a count", "samples_per_action": "a count", "variability": "relative spread of a person's strokes",
+    "batch_episodes": "a count (episodes per batch)",
     # the sibling sensors' (other_sensors/*/schema.py)
     "coefficient_spread": "relative spread", "stiffening_strain": "a strain", "tau": "a fraction of the range",
     "tolerance": "relative", "max_iterations": "a count", "lambda0": "Levenberg-Marquardt damping",

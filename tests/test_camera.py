@@ -324,3 +324,31 @@ def test_from_scene():
     with pytest.raises(ValueError) as err:
         CameraParams.from_scene(CameraSpec(exposure_ms=40.0))
     assert str(err.value) == "camera.exposure_ms = 40 exceeds the 33.3 ms frame period at camera.fps = 30: shorten the exposure or lower the frame rate"
+
+
+@pytest.mark.parametrize("overrides", [{}, {"cos4_falloff": True, "gain_db": 24.0}, {"read_noise_e": 0.3, "gain_db": 30.0, "adc_bits": 12}],
+                         ids=["default", "cos4-gain", "exact-poisson-12bit"])
+def test_capture_mono_is_capture_of_the_channels_byte_for_byte(overrides):
+    """capture_mono (the Bayer channels formed from the mono radiance, the camera stage's path for
+    the ML light) gives capture's bytes of radiance[..., None] * k, with and without noise, from
+    the dark (the exact Poisson branch) to past the full well, frame by frame or as a batch."""
+    p = C.CameraParams(**(overrides | {"width_px": 80, "height_px": 64}))
+    rng = np.random.default_rng(5)
+    k = np.array([0.078, 0.552, 0.273], np.float32)  # the ML light's channel factors (default sensor)
+    top = 1.5 * p.effective_full_well_e / p.electrons_per_radiance_m2_sr_s / float(k.max())
+    rad = (rng.random((3, 64, 80)) ** 4 * top).astype(np.float32)
+    rad[0, :10] = 0.0  # dark rows
+    for noise in (True, False):
+        ref = C.capture(rad[..., None] * k, np.random.default_rng(7), p, noise=noise)
+        got = C.capture_mono(rad, k, np.random.default_rng(7), p, noise=noise)
+        assert np.array_equal(got, ref), noise
+        cam, g = C.Camera(p), np.random.default_rng(7)
+        assert np.array_equal(np.stack([cam.mono(r, k, g, noise=noise) for r in rad]), ref)
+    assert len(np.unique(ref)) > 100  # the 8-bit range exercised, not one code
+    # what capture refuses, capture_mono refuses with capture's words
+    bad = rad.copy()
+    bad[1, 3, 3] = np.nan
+    with pytest.raises(ValueError, match=r"radiance has 3 NaN value\(s\)"):
+        C.capture_mono(bad, k, rng, p)
+    with pytest.raises(ValueError, match=r"radiance is 64 x 81 px \(H x W\) but the camera is 64 x 80"):
+        C.Camera(p).mono(np.zeros((64, 81), np.float32), k, rng)

@@ -44,7 +44,29 @@ from mlsim.camera_batched import CameraConstants, capture_mono_batched
 from mlsim.emission.batched import fraction_batched, merged_grids, photon_radiance_batched, von_mises_batched
 from mlsim.render.batched import transport_batched, transport_operator
 
-__all__ = ["BatchedChain", "ChainOutput"]
+__all__ = ["BatchedChain", "ChainOutput", "resolve_device"]
+
+
+def resolve_device(requested: str = "auto", cuda_available: bool | None = None) -> tuple[str, str]:
+    """The torch device the batched chain runs on, and why (for the run log), as
+    :func:`mlsim.render.sensor_scene.resolve_device` picks the render's: ``"auto"`` takes CUDA where
+    torch finds a device, else the CPU; ``"cuda"`` raises, with the fix, where torch finds none.
+    ``cuda_available``: torch's answer (``torch.cuda.is_available()`` when None)."""
+    if requested not in ("auto", "cpu", "cuda"):
+        raise ValueError(f'device = "{requested}": choose "auto", "cpu" or "cuda"')
+    if requested == "cpu":
+        return "cpu", "device = cpu"
+    ok = torch.cuda.is_available() if cuda_available is None else bool(cuda_available)
+    if ok:
+        name = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "a device"
+        return "cuda", f"device = {requested}: torch finds CUDA ({name})"
+    if requested == "cuda":
+        from mlsim.errors import MlsimError
+
+        raise MlsimError(f'device = "cuda", but torch finds no CUDA device here (torch {torch.__version__}, '
+                           f'CUDA build {torch.version.cuda or "none"}, torch.cuda.is_available() is False): '
+                           'set device = "auto" (CUDA where it is, else the CPU) or device = "cpu"')
+    return "cpu", f"device = auto: no CUDA device (torch {torch.__version__}, torch.cuda.is_available() is False), cpu"
 
 
 @dataclass
@@ -66,7 +88,8 @@ class BatchedChain:
     ``run(episodes, noise_seeds)``. See the module docstring."""
 
     def __init__(self, *, tet, area_m2, vertices_m, located, model, params, brightness, scale, fps, exposure_s, transport, raster,
-                 camera: CameraConstants, k_ml, ambient, ambient_level, k_ambient, taxels, dllm_params, n_idle, device="cpu"):
+                 camera: CameraConstants, k_ml, ambient, ambient_level, k_ambient, taxels, dllm_params, n_idle, device="cpu",
+                 rod_of_taxel=None):
         self.device = torch.device(device)
         self.tet = torch.as_tensor(np.asarray(tet, np.int64), device=self.device)
         self.area = torch.as_tensor(np.asarray(area_m2, np.float64), device=self.device)
@@ -83,6 +106,7 @@ class BatchedChain:
         self.ambient_level = ambient_level  # (windows (F, 2) s) -> (F,) lamp level
         self.k_ambient = torch.as_tensor(np.asarray(k_ambient, np.float32), device=self.device)
         self.taxels, self.dllm_params, self.n_idle = taxels, dllm_params, int(n_idle)
+        self.rod_of_taxel = rod_of_taxel  # (N,) the rod each taxel sees (the DLLM's calibration), for a dataset's record
 
     @classmethod
     def from_scene(cls, scene, first_episode, cache, device="cpu", log=lambda _m: None) -> "BatchedChain":
@@ -125,13 +149,13 @@ class BatchedChain:
             k_amb = channel_factors_of(scene, sd).astype(np.float32)
             level_of = partial(ambient_mod.lamp_level, flicker_hz=a.flicker_hz, flicker_depth=a.flicker_depth, switch_on_s=a.switch_on_s,
                                switch_off_s=a.switch_off_s)
-        cal, _ = _calibration_of(scene, res.results["calibration"].rgb)
+        cal, rod_of_taxel = _calibration_of(scene, res.results["calibration"].rgb)
         dp = DllmParams.from_scene(scene)
         return cls(tet=patches.tet, area_m2=patches.area_m2, vertices_m=patches.vertices_m, located=located, model=spec.model,
                    params=m.params_from(spec), brightness=spec.brightness_photons_per_m2, scale=scale, fps=scene.camera.fps,
                    exposure_s=scene.camera.exposure_ms * 1e-3, transport=transport, raster=raster, camera=CameraConstants.of(params),
                    k_ml=ml_channel_factors(scene), ambient=amb, ambient_level=level_of, k_ambient=k_amb, taxels=taxel_index(cal),
-                   dllm_params=dp, n_idle=dp.init_frames, device=device)
+                   dllm_params=dp, n_idle=dp.init_frames, device=device, rod_of_taxel=rod_of_taxel)
 
     # ----------------------------------------------------------------------------------- parts
     def windows(self, n_frames: int, start_s: float = 0.0) -> np.ndarray:

@@ -10,8 +10,11 @@
 3. the driver runs the sensor's precomputes once (mesh, reduced model, transport matrix, calibration
    frame; cached on disk, and listed there for the next run of the same sensor and interaction, which
    then skips this step while they are all still cached), then the workers run the episodes (:func:`run_episode_job`: the pipeline
-   to the DLLM at the base scene's tiers, single-threaded), and the driver writes each episode as
-   it arrives, atomically (:mod:`mlsim.dataset.store`), with a progress bar (rate and ETA);
+   to the DLLM at the base scene's tiers, single-threaded; with the spec's ``chain = "batched"``,
+   :func:`run_batch_job`: ``batch_episodes`` episodes solved one by one, then the chain after the
+   solve for all of them at once on the spec's ``device``, :mod:`mlsim.dataset.batched`), and the
+   driver writes each episode as it arrives, atomically (:mod:`mlsim.dataset.store`), with a
+   progress bar (rate and ETA);
 4. an episode that raises (a refused load, a ``SolverError``) or whose worker process is killed (the
    kernel's out-of-memory killer, any signal) is recorded in ``DIR/failures.json`` with its reason
    (:func:`mlsim.dataset.store.write_failures`) and the others go on; nothing of it is stored, so
@@ -43,7 +46,7 @@ from mlsim.io import atomic_bytes
 from mlsim.interactions import ACTION_TO_4, ACTIONS, InteractionSpec, Sample, draw_people, draw_sample, frame_labels, interaction_scene
 from mlsim.scene import Scene, scene_from_dict
 
-__all__ = ["plan_episodes", "run_episode_job", "generate", "failures_line", "CACHE_KEEP"]
+__all__ = ["plan_episodes", "run_episode_job", "run_batch_job", "episode_record", "generate", "failures_line", "CACHE_KEEP"]
 
 #: The stages a dataset keeps in the cache: the sensor's, shared by every episode (each episode's
 #: own intermediate results are not written to disk).
@@ -98,8 +101,6 @@ def run_episode_job(job: dict) -> dict:
 
     ``job``: a plan entry plus ``base_scene`` (a scene dict), ``interaction`` (an InteractionSpec dict),
     ``cache_dir`` and ``store_frames``."""
-    from dllm.features import with_omega_rad
-    from fem.geometry import RodArray
     from mlsim import pipeline
 
     scene, sample, spec = _episode(job)
@@ -109,8 +110,21 @@ def run_episode_job(job: dict) -> dict:
     result = pipeline.run(scene, cache=cache, outputs=("dllm",), progress=False, log=lambda _m: None)
     seconds = time.perf_counter() - t0
     ep, dllm, camera, render = (result.results[k] for k in ("solve", "dllm", "camera", "render"))
+    return episode_record(job, scene, sample, spec, ep, dllm.features, dllm.events, dllm.rod_of_taxel, camera.rod_signal_e, camera.frames,
+                          max(render.info.get("sheet_displacement_mm", [0.0])), seconds, result.seconds)
+
+
+def episode_record(job: dict, scene: Scene, sample: Sample, spec: InteractionSpec, ep, features_deg, events, rod_of_taxel, rod_signal_e,
+                   frames, max_sheet_displacement_mm: float, seconds: float, stage_seconds: dict) -> dict:
+    """The store's {"arrays", "attrs"} of one episode from its solve (``ep``, a :class:`fem.episode.Episode`)
+    and the chain after it: the DLLM's features (F, N, 3) (omega in degrees) and events (F,), the
+    taxels' rods (N,), the rods' noiseless signal (F, R) e-, the camera frames (F, H, W, 3) uint8
+    (stored when the job asks), the sheet's largest displacement (mm) and the timings (s)."""
+    from dllm.features import with_omega_rad
+    from fem.geometry import RodArray
+
     k = ep.frame_step
-    features = with_omega_rad(dllm.features)  # the detector gives degrees in [0, 360); the dataset stores rad in (-pi, pi]
+    features = with_omega_rad(features_deg)  # the detector gives degrees in [0, 360); the dataset stores rad in (-pi, pi]
     rods = RodArray.from_sensor(scene.sensor)
     rod_force = ep.rod_force_n[k][:, : rods.n_rods].astype(np.float32)
     lever = np.zeros((rods.n_rods, 3))
@@ -118,22 +132,93 @@ def run_episode_job(job: dict) -> dict:
     moment = np.cross(lever[None], rod_force.astype(np.float64)).sum(axis=1)
     arrays = {
         "dllm_features": features,
-        "dllm_event": np.asarray(dllm.events, dtype=bool),
+        "dllm_event": np.asarray(events, dtype=bool),
         "frame_label": frame_labels(sample, spec, ep.n_frames, scene.camera.fps, job["label"]),
         "rod_force_n": rod_force,
         "wrench": np.concatenate([rod_force.sum(axis=1), moment], axis=1).astype(np.float32),
         "screw_pose": ep.pose[k].astype(np.float32),
-        "rod_signal_e": camera.rod_signal_e.astype(np.float32),
+        "rod_signal_e": np.asarray(rod_signal_e).astype(np.float32),
     }
     if job["store_frames"]:
-        arrays["frames"] = camera.frames
+        arrays["frames"] = frames
     attrs = {key: job[key] for key in ("episode_id", "action", "label", "label_4", "person", "sample_index", "noise_seed", "sample", "randomized")
              if key in job}
-    attrs.update(n_frames=int(ep.n_frames), fps=float(scene.camera.fps), rod_of_taxel=[int(v) for v in dllm.rod_of_taxel],
-                 max_sheet_displacement_mm=float(max(render.info.get("sheet_displacement_mm", [0.0]))),
+    attrs.update(n_frames=int(ep.n_frames), fps=float(scene.camera.fps), rod_of_taxel=[int(v) for v in rod_of_taxel],
+                 max_sheet_displacement_mm=float(max_sheet_displacement_mm),
                  peak_normal_force_n=float(ep.normal_force_n.max()), seconds=round(seconds, 4),
-                 stage_seconds={s: round(v, 4) for s, v in result.seconds.items()})
+                 stage_seconds={s: round(v, 4) for s, v in stage_seconds.items()})
     return {"arrays": arrays, "attrs": attrs}
+
+
+#: The batched chain of a worker, per (base scene, device, cache): its parts are the sensor's
+#: (patches, matrices, calibration), made once (mlsim.dataset.batched)
+_CHAINS: dict = {}
+
+
+def run_batch_job(batch: dict) -> dict:
+    """A batch of episodes of one sensor: each one's solve through the pipeline, then the chain after
+    it for all of them at once (:class:`mlsim.dataset.batched.BatchedChain` on ``batch["device"]``).
+
+    ``batch``: {"jobs": [jobs as :func:`run_episode_job` takes them], "device": "cpu" | "cuda"}.
+    Returns {"results": {episode id: {"arrays", "attrs"}}, "failures": {episode id: {"error_type",
+    "message"}}}: an episode whose solve raises is a failure of its own, the others go on; one that
+    raises in the chain fails the batch (the driver records each of its episodes)."""
+    from mlsim import pipeline
+    from mlsim.dataset.batched import BatchedChain
+    from mlsim.render import deformed_vertices
+    from mlsim.render.kernels import largest_displacement
+    from mlsim.render.optics import ml_channel_factors
+    from mlsim.render.output import rod_masks, rod_signal_of
+
+    jobs, device = batch["jobs"], batch["device"]
+    cache = pipeline.Cache(jobs[0]["cache_dir"], keep=CACHE_KEEP, in_memory=CACHE_KEEP)
+    solved, failures = [], {}
+    for job in jobs:
+        scene, sample, spec = _episode(job)
+        t0 = time.perf_counter()
+        try:
+            res = pipeline.run(scene, cache=cache, outputs=("solve",), progress=False, log=lambda _m: None)
+        except Exception as exc:  # this episode's load refused: recorded, the batch goes on
+            failures[job["episode_id"]] = {"error_type": type(exc).__name__, "message": str(exc)[:2000]}
+            continue
+        solved.append((job, scene, sample, spec, res.results["solve"], time.perf_counter() - t0))
+    out = {"results": {}, "failures": failures}
+    if not solved:
+        return out
+    scene0 = solved[0][1]
+    key = (json.dumps(jobs[0]["base_scene"], sort_keys=True), device, str(cache.root))
+    if key not in _CHAINS:
+        _CHAINS.clear()  # a worker runs one dataset
+        _CHAINS[key] = BatchedChain.from_scene(scene0, solved[0][4], cache, device=device)
+    chain = _CHAINS[key]
+    eps = [s[4] for s in solved]
+    moved_mm = []
+
+    def direct(b, radiance):
+        # the vertices once per episode: the direct light's and the record's sheet displacement
+        vertices = deformed_vertices(eps[b], chain.vertices_m, chain.located)
+        moved_mm.append(max(round(float(d) * 1e3, 4) for d in largest_displacement(vertices, np.asarray(chain.vertices_m, dtype=float))))
+        return chain.direct(radiance, vertices)
+
+    tet = chain.tet.cpu().numpy()
+    t0 = time.perf_counter()
+    chain_out = chain.run_arrays([ep.stress[:, :, tet] for ep in eps], [ep.t_s for ep in eps], [s[0]["noise_seed"] for s in solved], direct,
+                                 keep_radiance=True, keep_frames=bool(jobs[0]["store_frames"]), noise=bool(scene0.camera.noise),
+                                 n_frames=[ep.n_frames for ep in eps])
+    chain_s = time.perf_counter() - t0
+    k = ml_channel_factors(scene0).astype(np.float32)
+    masks, per_radiance_e = rod_masks(scene0, chain.height_px, chain.width_px)
+    frames_total = sum(ep.n_frames for ep in eps)
+    sec = chain_out.seconds
+    parts = {"emission": sec["emission"], "render": sec["raster"] + sec["bounces"], "camera": sec["camera"], "dllm": sec["dllm"]}
+    for b, (job, scene, sample, spec, ep, solve_s) in enumerate(solved):
+        share = ep.n_frames / frames_total  # the batch's parts split over its episodes by their frames
+        stage_s = {"solve": solve_s} | {name: v * share for name, v in parts.items()}
+        out["results"][job["episode_id"]] = episode_record(
+            job, scene, sample, spec, ep, chain_out.features[b], chain_out.events[b], chain.rod_of_taxel,
+            rod_signal_of(chain_out.radiance[b], masks, per_radiance_e, k), chain_out.frames[b] if chain_out.frames else None, moved_mm[b],
+            solve_s + chain_s * share, stage_s)
+    return out
 
 
 # ------------------------------------------------------------------------------------ the driver
@@ -202,6 +287,12 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     from mlsim.dataset.failures import JobFailed
 
     out = Path(out_dir)
+    # the chain after the solve: its device resolved first, so that a "cuda" without one fails before anything is written
+    device, why = "cpu", "chain = per_episode"
+    if spec.chain == "batched":
+        from mlsim.dataset.batched import resolve_device
+
+        device, why = resolve_device(spec.device)
     jobs, people = plan_episodes(spec)
     cache = pipeline.Cache(cache_dir, keep=CACHE_KEEP)
     attrs = {"spec": spec.model_dump(mode="json"), "base_scene": base.model_dump(mode="json"), "base_scene_hash": base.content_hash(),
@@ -218,6 +309,10 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
         + (f" ({retried} that failed before)" if retried else "") + f" on {workers} {executor} worker(s)")
     common = {"base_scene": base.model_dump(mode="json"), "interaction": spec.interaction.model_dump(mode="json"),
               "cache_dir": str(cache.root), "store_frames": spec.store_frames}
+    # on the CPU the batched chain runs slower than the per-episode one (docs/uses/datasets.md): the log says so
+    slower = "; on the CPU it is slower than chain = per_episode" if device == "cpu" else ""
+    log(f"[dataset] chain: batched, {spec.batch_episodes} episodes per batch, on {device} ({why}){slower}" if spec.chain == "batched" else
+        "[dataset] chain: per_episode on the CPU (chain = per_episode, the default and the reference)")
     t_start = time.perf_counter()
     precompute_s = 0.0
     t0 = time.perf_counter()
@@ -250,19 +345,44 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     attempted = {j["episode_id"] for j in todo}
     # the failures of earlier runs that this run does not retry (a --limit) stay recorded
     failures = {k: v for k, v in earlier_failures.items() if k not in attempted}
+
+    def record_failure(episode_id: str, kind: str, error_type: str, message: str, reason: str) -> None:
+        failures[episode_id] = {"kind": kind, "error_type": error_type, "message": message[:2000]}
+        log(f"[dataset] episode {episode_id} failed: {reason[:300]}")
+        bar.update(1)
+
+    def store_result(episode_id: str, result: dict) -> None:
+        nonlocal n_new, n_frames
+        store.write_episode(out, episode_id, result["arrays"], result["attrs"])
+        worker_seconds.append(result["attrs"]["seconds"])
+        n_new += 1
+        n_frames += int(result["attrs"]["n_frames"])
+        bar.update(1)
+
     try:
-        for job, result in map_unordered(run_episode_job, (j | common for j in todo), executor=executor, workers=workers, address=address,
-                                         on_failure="record"):
-            if isinstance(result, JobFailed):
-                failures[job["episode_id"]] = {"kind": result.kind, "error_type": result.error_type, "message": result.message[:2000]}
-                log(f"[dataset] episode {job['episode_id']} failed: {result.reason[:300]}")
-                bar.update(1)
-                continue
-            store.write_episode(out, job["episode_id"], result["arrays"], result["attrs"])
-            worker_seconds.append(result["attrs"]["seconds"])
-            n_new += 1
-            n_frames += int(result["attrs"]["n_frames"])
-            bar.update(1)
+        if spec.chain == "batched":
+            size = spec.batch_episodes
+            # "episode_id": how the executor names a failed item in its messages (the batch's first and last)
+            batches = ({"episode_id": f"{todo[i]['episode_id']}..{todo[min(i + size, len(todo)) - 1]['episode_id']}", "device": device,
+                        "jobs": [j | common for j in todo[i: i + size]]} for i in range(0, len(todo), size))
+            for batch, result in map_unordered(run_batch_job, batches, executor=executor, workers=workers, address=address,
+                                               on_failure="record"):
+                if isinstance(result, JobFailed):  # the chain raised, or the worker died: every episode of the batch
+                    for job in batch["jobs"]:
+                        record_failure(job["episode_id"], result.kind, result.error_type, result.message,
+                                       f"(its batch {batch['episode_id']}) {result.reason}")
+                    continue
+                for episode_id, f in result["failures"].items():
+                    record_failure(episode_id, "error", f["error_type"], f["message"], f"{f['error_type']}: {f['message']}")
+                for episode_id, r in result["results"].items():
+                    store_result(episode_id, r)
+        else:
+            for job, result in map_unordered(run_episode_job, (j | common for j in todo), executor=executor, workers=workers, address=address,
+                                             on_failure="record"):
+                if isinstance(result, JobFailed):
+                    record_failure(job["episode_id"], result.kind, result.error_type, result.message, result.reason)
+                else:
+                    store_result(job["episode_id"], result)
     finally:
         bar.close()
         failures = {k: v for k, v in failures.items() if k not in store.complete_episodes(out)}
@@ -271,7 +391,7 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     stored = store.complete_episodes(out)
     summary = {
         "name": spec.name, "out": str(out), "episodes_planned": len(jobs), "episodes_stored": len(stored), "episodes_run_now": n_new,
-        "complete": len(stored) == len(jobs), "workers": workers, "executor": executor,
+        "complete": len(stored) == len(jobs), "workers": workers, "executor": executor, "chain": spec.chain, "device": device,
         "precompute_s": round(precompute_s, 2), "episodes_wall_s": round(wall, 2),
         "episodes_per_s": round(n_new / wall, 3) if wall > 0 and n_new else None,
         "frames_per_s": round(n_frames / wall, 1) if wall > 0 and n_new else None, "machine": _machine(),

@@ -16,6 +16,12 @@ A spec is a TOML file (``scenes/interactions/paper.toml``)::
     [randomize]                     # optional: scene fields drawn per episode (mlsim.dataset.randomize)
     "camera.gain_db" = [0.0, 6.0]
 
+The chain after the solve (``docs/uses/datasets.md``, the batched chain)::
+
+    chain = "per_episode"           # the default and the reference; "batched": mlsim.dataset.batched
+    device = "auto"                 # the batched chain's: "auto" (CUDA where torch finds it, else the CPU), "cpu", "cuda"
+    batch_episodes = 16             # the batched chain's episodes per batch (one sensor's)
+
 Unknown keys and bad values are refused with the dotted path, the value and what is valid, as
 scenes are (:mod:`mlsim.scene`).
 """
@@ -25,7 +31,7 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, Strict, ValidationError, field_validator, model_serializer, model_validator
 
@@ -34,6 +40,10 @@ from mlsim.interactions import ACTIONS, InteractionSpec
 from mlsim.scene import Bool, Scene, _Model, _problems_from_pydantic, load_scene, read_toml
 
 __all__ = ["DatasetSpec", "load_dataset_spec", "dataset_spec_from_dict"]
+
+# The chain's fields at their defaults are left out of the spec's dump and hash (the datasets made
+# before they existed keep theirs)
+_CHAIN_DEFAULTS = {"chain": "per_episode", "device": "auto", "batch_episodes": 16}
 
 
 class DatasetSpec(_Model):
@@ -50,6 +60,14 @@ class DatasetSpec(_Model):
     interaction: InteractionSpec = InteractionSpec()
     # domain randomisation (mlsim.dataset.randomize): scene field -> [low, high], drawn per episode
     randomize: dict[str, tuple[float, float]] | None = None
+    # the stages after the solve: each episode's one after the other (the default and the reference),
+    # or a batch of episodes of the sensor at once as tensor operations (mlsim.dataset.batched: the
+    # deformed render tier, no [randomize]; the camera noise from torch's generator, the same model)
+    chain: Literal["per_episode", "batched"] = "per_episode"
+    # the batched chain's torch device, picked as fidelity.render.device: "auto" is CUDA where torch finds it, else the CPU
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    # the batched chain's episodes per batch (a GPU wants many: 100 on an H200 took 31 GiB)
+    batch_episodes: Annotated[int, Strict(), Field(ge=1, le=10_000)] = 16
 
     @field_validator("randomize", mode="before")
     @classmethod
@@ -60,10 +78,14 @@ class DatasetSpec(_Model):
 
     @model_serializer(mode="wrap")
     def _without_absent_randomize(self, handler):
-        # a spec without [randomize] dumps (and hashes) as before it existed: its dataset stays byte-identical
+        # a spec without [randomize], or at the default chain, dumps (and hashes) as before these
+        # existed: its dataset stays byte-identical
         data = handler(self)
         if data.get("randomize", 0) is None:
             del data["randomize"]
+        for name, default in _CHAIN_DEFAULTS.items():
+            if data.get(name) == default:
+                del data[name]
         return data
 
     @field_validator("actions")
@@ -93,9 +115,24 @@ class DatasetSpec(_Model):
 
 def dataset_spec_from_dict(data: dict, source: str | None = None) -> DatasetSpec:
     try:
-        return DatasetSpec.model_validate(data)
+        spec = DatasetSpec.model_validate(data)
     except ValidationError as exc:
         raise SceneError(_problems_from_pydantic(exc), source=source) from None
+    problems = _chain_problems(spec)
+    if problems:
+        raise SceneError(problems, source=source)
+    return spec
+
+
+def _chain_problems(spec: DatasetSpec) -> list[Problem]:
+    """The chain's settings that do not fit together, each naming its field and the fix."""
+    problems = []
+    if spec.chain == "per_episode" and spec.device == "cuda":
+        problems.append(Problem("device", spec.device, 'the batched chain\'s device: set chain = "batched" (or device = "auto")'))
+    if spec.chain == "batched" and spec.randomize:
+        problems.append(Problem("chain", spec.chain, "runs batches of one sensor, and [randomize] draws a sensor per episode: "
+                                'set chain = "per_episode" or remove [randomize]'))
+    return problems
 
 
 def load_dataset_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[DatasetSpec, Scene]:
@@ -112,6 +149,14 @@ def load_dataset_spec(path: str | Path, overrides: dict[str, Any] | None = None)
     base = load_scene(scene_path)
     if base.load is None:
         raise SceneError([Problem("scene", spec.scene, "the base scene needs a [load] (its friction is the screw's)")], source=str(path))
+    if spec.chain == "batched":  # what mlsim.dataset.batched runs (BatchedChain.from_scene would refuse it in every worker)
+        tier, stress = base.fidelity.render.tier, base.emission.equivalent_stress
+        if tier != "deformed" or stress != "von_mises":
+            field, value, need = (("fidelity.render.tier", tier, "deformed") if tier != "deformed" else
+                                  ("emission.equivalent_stress", stress, "von_mises"))
+            raise SceneError([Problem("chain", "batched", f'the batched chain runs {field} = "{need}" only, and the base scene has '
+                                      f'{field} = "{value}": set chain = "per_episode" or {field} = "{need}" in {spec.scene}')],
+                             source=str(path))
     for field, ends in (spec.randomize or {}).items():  # both ends of a range must make a valid scene
         for value in ends:
             try:

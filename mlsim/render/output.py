@@ -84,7 +84,7 @@ def expose(scene, render_result, emission_result) -> CameraFrames:
     with the ambient lamp's leak (``render_result.ambient``) at its level in each exposure."""
     from fem.geometry import RodArray
     from mlsim.camera import Camera
-    from mlsim.render.optics import camera_params, ml_channel_factors, rod_disks_px
+    from mlsim.render.optics import camera_params, ml_channel_factors
 
     params = camera_params(scene)
     camera = Camera(params)
@@ -96,20 +96,39 @@ def expose(scene, render_result, emission_result) -> CameraFrames:
     ambient, level, k_amb = _ambient_terms(scene, render_result, windows)
     frames = np.empty((F, H, W, 3), np.uint8)
     for f in range(F):
-        channels = rad[f][..., None] * k
         if ambient is not None and level[f] > 0:
+            channels = rad[f][..., None] * k
             channels += (level[f] * ambient)[..., None] * k_amb
-        frames[f] = camera(channels, rng, noise=scene.camera.noise)
+            frames[f] = camera(channels, rng, noise=scene.camera.noise)
+        else:  # the ML light alone: the Bayer channels formed from the mono radiance (the same bytes, a third of the work)
+            frames[f] = camera.mono(rad[f], k, rng, noise=scene.camera.noise)
     g = RodArray.from_sensor(scene.sensor)
     rod_photons = emission_result.per_rod(g.n_rods)[:, : g.n_rods] * (windows[:, 1] - windows[:, 0])[:, None]
-    centres, radius = rod_disks_px(scene)
-    masks = disk_masks(H, W, centres, radius).reshape(g.n_rods, -1).astype(np.float32)
-    per_radiance_e = params.electrons_per_radiance_m2_sr_s / masks.sum(axis=1)[None]
-    rod_signal_e = (rad.reshape(F, -1) @ masks.T) * (float(k.sum()) * per_radiance_e)
+    masks, per_radiance_e = rod_masks(scene, H, W)
+    rod_signal_e = rod_signal_of(rad, masks, per_radiance_e, k)
     rod_ambient_e = np.zeros_like(rod_signal_e)
     if ambient is not None:
         rod_ambient_e = level[:, None] * ((ambient.reshape(1, -1) @ masks.T) * (float(k_amb.sum()) * per_radiance_e))
     return CameraFrames(frames, windows, render_result.rendered.copy(), rod_photons, rod_signal_e, params.fps, rod_ambient_e, level)
+
+
+def rod_masks(scene, height_px: int, width_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rods' paraxial disks as masks (R, H * W) float32 and the electrons per unit radiance
+    averaged over each disk (1, R)."""
+    from fem.geometry import RodArray
+    from mlsim.render.optics import camera_params, rod_disks_px
+
+    n_rods = RodArray.from_sensor(scene.sensor).n_rods
+    centres, radius = rod_disks_px(scene)
+    masks = disk_masks(height_px, width_px, centres, radius).reshape(n_rods, -1).astype(np.float32)
+    return masks, camera_params(scene).electrons_per_radiance_m2_sr_s / masks.sum(axis=1)[None]
+
+
+def rod_signal_of(radiance: np.ndarray, masks: np.ndarray, per_radiance_e: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """(F, R) mean noiseless ML signal per rod (electrons) of radiance (F, H, W) float32, with
+    :func:`rod_masks`'s masks and scale and the ML light's channel factors k (3,) float32."""
+    F = len(radiance)
+    return (radiance.reshape(F, -1) @ masks.T) * (float(k.sum()) * per_radiance_e)
 
 
 def idle_frames(scene, render_result, n_frames: int, start_s: float | None = None, stream: int = 0) -> np.ndarray:
