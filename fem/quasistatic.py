@@ -497,6 +497,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         raise ValueError(f'fidelity.solve.tier = "{settings.tier}": choose "reduced", "linear" or "nonlinear"')
     if settings.rod_kinematics in ("second_order", "cosserat") and settings.contact_solver != "admm":
         raise ValueError(f'fidelity.solve.rod_kinematics = "{settings.rod_kinematics}" needs fidelity.solve.contact_solver = "admm"')
+    if settings.dynamics != "quasi_static" and log is not None:
+        log(quasi_static_warning(settings))
     timings: dict = {}
     lame, rho, e_contact = layer_materials(scene)
     if settings.tier == "reduced" and reduced is None:
@@ -825,6 +827,15 @@ GEOMETRIC_WARNING = 0.10  # warn when the estimated per-rod contact force error 
 # hold steps (the indenter where the last step left it) reuse the last step's answer, which is their
 # fixed point (tests/test_contact_admm.py solves them anyway and compares)
 REUSE_HOLDS = True
+
+
+def quasi_static_warning(settings: SolveSettings) -> str:
+    """The run log's line for a scene that asks the linear tiers for dynamics: they have no inertia, and
+    solve each step as an equilibrium (the solve's key leaves the field out for them, fem.stages)."""
+    return (f'warning: fidelity.solve.dynamics = "{settings.dynamics}" is the nonlinear tier\'s: the {settings.tier} tier has no inertia '
+            "and solves each step as an equilibrium (quasi-static); a rod that buckles or snaps back does so there within a step "
+            '(the swipe over 12 mm rods: 24-62 % off the dynamic reference, docs/stages/solve.md); use fidelity.solve.tier = "nonlinear" '
+            "for its dynamics")
 
 
 def _holds(state: trajectory.IndenterState, pose_old: Pose, last_target_n: float) -> bool:
