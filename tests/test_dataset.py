@@ -200,7 +200,7 @@ def test_kill_halfway_then_resume_completes_without_duplicates(small, tmp_path):
             assert a[k].tobytes() == b[k].tobytes(), (e, k)
 
 
-def test_the_drivers_episode_lists_the_sensors_precomputes_for_the_next_run(small, tmp_path):
+def test_the_drivers_episode_lists_the_sensors_precomputes_for_the_next_run(small, tmp_path, monkeypatch):
     """The module's run listed what its driver episode took from the cache: the mesh, the calibration
     frame and the hidden precomputes (the reduced tier's, the transport matrix, the ML sheet's patches and where they sit in the mesh). A later run skips
     its driver episode only while every listed result is still in the cache."""
@@ -225,6 +225,11 @@ def test_the_drivers_episode_lists_the_sensors_precomputes_for_the_next_run(smal
     # another interaction is another list
     other = spec.model_copy(update={"interaction": spec.interaction.model_copy(update={"grip_force_n": spec.interaction.grip_force_n * 2})})
     assert gen._precomputes_path(cache, base, other) != gen._precomputes_path(cache, base, spec)
+    # another code is another list: its precomputes' keys may be new ones the old list does not name
+    path = gen._precomputes_path(cache, base, spec)
+    monkeypatch.setattr(gen, "_code_version", lambda: "changed")
+    assert gen._precomputes_path(cache, base, spec) != path
+    assert gen._precomputes_listed(cache, base, spec) is None
 
 
 def test_a_half_written_episode_is_cleared(small, tmp_path):

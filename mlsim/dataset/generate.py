@@ -235,10 +235,24 @@ def failures_line(failures: dict[str, dict]) -> str:
     return f"{len(items)} episode{'s' if len(items) != 1 else ''} failed: {named}{more}"
 
 
+def _code_version() -> str:
+    """SHA-256 of the simulator's source (mlsim, fem, dllm): a cached precompute's key holds its own code
+    version, which the list of an earlier run cannot know (fem.stages' reduced model: "version" in its payload)."""
+    root = Path(__file__).resolve().parents[2]
+    digest = hashlib.sha256()
+    for package in ("mlsim", "fem", "dllm"):
+        for path in sorted((root / package).rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
 def _precomputes_path(cache, base: Scene, spec: DatasetSpec) -> Path:
-    """Where the driver lists the sensor's cached results its episode took (per base scene and interaction)."""
-    ident = json.dumps({"base": base.content_hash(), "interaction": spec.interaction.model_dump(mode="json"), "keep": CACHE_KEEP},
-                       sort_keys=True)
+    """Where the driver lists the sensor's cached results its episode took (per base scene, interaction and
+    code: after a change of the code the list names the old precomputes, which are still in the cache, and the
+    driver skipped its episode, so that every worker built the new ones itself)."""
+    ident = json.dumps({"base": base.content_hash(), "interaction": spec.interaction.model_dump(mode="json"), "keep": CACHE_KEEP,
+                        "code": _code_version()}, sort_keys=True)
     return Path(cache.root) / "dataset_precomputes" / f"{hashlib.sha256(ident.encode()).hexdigest()}.json"
 
 
