@@ -208,6 +208,7 @@ class CosseratKinematics:
         self._straight = cr.straight_rod(section, segments)
         _, H0 = cr.gradient_and_hessian(self._straight, section, np.array([1.0, 0.0, 0.0, 0.0]))
         self._H0_factor = np.linalg.cholesky(H0)
+        self._responses = [self._unit_responses(j) for j in range(R)]
         self._warm: dict[int, cr.RodState] = {}
         self._last_answers = (None, [])  # (forces, _answers' list): the field recovery asks twice per distinct load
         self._held: dict[bytes, list] = {}  # the contact loop's held answers by their forces (the field recovery's)
@@ -226,11 +227,37 @@ class CosseratKinematics:
         obs = (self.obs_0 + self.A @ f.ravel()).reshape(-1, 6)
         return obs[:, :3], obs[:, 3:]
 
-    def _linear_dofs(self, loads: cr.PointLoads, tip_force_n=(0.0, 0.0, 0.0), tip_moment_n_m=(0.0, 0.0, 0.0)) -> np.ndarray:
-        """The straight rod's linear response (..., 6 N) to ``loads`` and a tip force and moment (its Hessian's solve)."""
-        g0, _ = cr.gradient_and_hessian(self._straight, self.section, np.array([1.0, 0.0, 0.0, 0.0]), tip_force_n, tip_moment_n_m,
-                                        loads=loads, hessian=False)
-        return -cr._cho_solve(self._H0_factor, g0)
+    def _linear_dofs(self, j: int, forces: np.ndarray, tip_force_n=(0.0, 0.0, 0.0), tip_moment_n_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """The straight rod j's linear response (6 N,) to dead forces (k, 3) N on its points and a tip force and
+        moment: its precomputed responses to unit loads (:meth:`_unit_responses`)."""
+        points, tip = self._responses[j]
+        return points @ np.asarray(forces, dtype=float).ravel() + tip @ np.concatenate([tip_force_n, tip_moment_n_m])
+
+    def _unit_responses(self, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """The straight rod's linear dofs (6 N, 3 k) per unit force on each of rod j's k points and (6 N, 6) per unit
+        tip force and moment: -H_0^-1 of the load's gradient at the straight state, where it is linear in the load
+        (:func:`fem.cosserat_rod.gradient_and_hessian`'s point-load terms with R = I: -s f on x_{e+1}, -(1 - s) f on
+        x_e, -rho x f on psi_e; the tip's -F on x_N and -M on psi_{N-1}). The contact rounds ask for it twice per
+        loaded rod per round (the straight rod's gradient each time: an eighth of the default demo's held run)."""
+        segment, along, offset = self._attach[j]
+        N, k = self.segments, len(segment)
+        B = np.zeros((N, 6, 3 * k))
+        for i in range(k):
+            e, s_k = int(segment[i]), float(along[i])
+            cols = slice(3 * i, 3 * i + 3)
+            B[e, 3:, cols] -= s_k * np.eye(3)
+            if e >= 1:
+                B[e - 1, 3:, cols] -= (1.0 - s_k) * np.eye(3)
+            B[e, :3, cols] -= cr._skew(offset[i])  # d(-rho x f)/df = -[rho]x
+        T = np.zeros((N, 6, 6))
+        T[N - 1, 3:, :3] = -np.eye(3)
+        T[N - 1, :3, 3:] = -np.eye(3)
+
+        def solve(G):  # -H_0^-1 G, columns at once
+            L = self._H0_factor
+            return -np.linalg.solve(L.T, np.linalg.solve(L, G.reshape(6 * N, -1)))
+
+        return solve(B), solve(T)
 
     @staticmethod
     def _linear_positions(d: np.ndarray, segment: np.ndarray, along: np.ndarray, offset: np.ndarray) -> np.ndarray:
@@ -269,7 +296,7 @@ class CosseratKinematics:
             force[b, :k] = f[pts]
             if hold is not None:
                 q_frozen, f_pd, K_pts = hold
-                d_lin = self._linear_dofs(cr.PointLoads(*self._attach[j], f[pts] + f_pd[pts]))
+                d_lin = self._linear_dofs(j, f[pts] + f_pd[pts])
                 anchor[b, :k] = (self.X[pts] + u_r[j] + np.cross(th_r[j], self.X[pts] - self.root_X[j])
                                  + self._linear_positions(d_lin, *self._attach[j]) + q_frozen[pts])
                 stiffness[b, :k] = K_pts[pts]
@@ -344,7 +371,7 @@ class CosseratKinematics:
             if lever > 0.0:
                 f_pd[:2] = -np.cross([0.0, 0.0, 1.0], [moment[0], moment[1], 0.0])[:2] / lever
             load = w[:, None] * f_pd
-            d_lin = self._linear_dofs(cr.PointLoads(*self._attach[j], fj + load), F_s, M_s)
+            d_lin = self._linear_dofs(j, fj + load, F_s, M_s)
             yield j, state, u_r, th_r, load, d_lin
 
     def _nonlinear_part(self, j: int, state: cr.RodState, u_r, th_r, d_lin, Y: np.ndarray) -> np.ndarray:

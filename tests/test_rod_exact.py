@@ -70,6 +70,18 @@ def test_attachments_put_points_on_their_segment():
     assert np.all(off[:, 2] == 0)
 
 
+def test_the_straight_rods_unit_responses_are_its_gradients_solve(rod0):
+    """The rounds' linear rod (CosseratKinematics._linear_dofs, precomputed responses to unit loads) is the
+    straight rod's Hessian solve of the loads' gradient, for any forces on rod 0's points and tip loads."""
+    kin, points, _, _ = rod0
+    rng = np.random.default_rng(3)
+    f, F, M = rng.normal(size=(points.m, 3)), rng.normal(size=3), 1e-3 * rng.normal(size=3)
+    g0, _ = cr.gradient_and_hessian(kin._straight, kin.section, np.array([1.0, 0.0, 0.0, 0.0]), F, M,
+                                    loads=cr.PointLoads(*kin._attach[0], f), hessian=False)
+    expected = -cr._cho_solve(kin._H0_factor, g0)
+    np.testing.assert_allclose(kin._linear_dofs(0, f, F, M), expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
 def test_q_vanishes_without_force_and_is_quadratic_at_small_force(rod0):
     """q is the rod's nonlinear part: zero at zero force, second order in it (q(2 f) = 4 q(f) to 3 %
     at 1 % of the unit pattern), and at the unit pattern the tip's drop, the largest term, is
