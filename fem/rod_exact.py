@@ -235,29 +235,24 @@ class CosseratKinematics:
 
     def _unit_responses(self, j: int) -> tuple[np.ndarray, np.ndarray]:
         """The straight rod's linear dofs (6 N, 3 k) per unit force on each of rod j's k points and (6 N, 6) per unit
-        tip force and moment: -H_0^-1 of the load's gradient at the straight state, where it is linear in the load
-        (:func:`fem.cosserat_rod.gradient_and_hessian`'s point-load terms with R = I: -s f on x_{e+1}, -(1 - s) f on
-        x_e, -rho x f on psi_e; the tip's -F on x_N and -M on psi_{N-1}). The contact rounds ask for it twice per
-        loaded rod per round (the straight rod's gradient each time: an eighth of the default demo's held run)."""
+        tip force and moment: -H_0^-1 of the loads' gradient at the straight state, where it is linear in them (one
+        batch of :func:`fem.cosserat_rod.gradient_and_hessian`, a unit load per rod of the batch). The contact rounds
+        ask for it twice per loaded rod per round (the straight rod's gradient each time: an eighth of the default
+        demo's held run)."""
         segment, along, offset = self._attach[j]
-        N, k = self.segments, len(segment)
-        B = np.zeros((N, 6, 3 * k))
-        for i in range(k):
-            e, s_k = int(segment[i]), float(along[i])
-            cols = slice(3 * i, 3 * i + 3)
-            B[e, 3:, cols] -= s_k * np.eye(3)
-            if e >= 1:
-                B[e - 1, 3:, cols] -= (1.0 - s_k) * np.eye(3)
-            B[e, :3, cols] -= cr._skew(offset[i])  # d(-rho x f)/df = -[rho]x
-        T = np.zeros((N, 6, 6))
-        T[N - 1, 3:, :3] = -np.eye(3)
-        T[N - 1, :3, 3:] = -np.eye(3)
-
-        def solve(G):  # -H_0^-1 G, columns at once
-            L = self._H0_factor
-            return -np.linalg.solve(L.T, np.linalg.solve(L, G.reshape(6 * N, -1)))
-
-        return solve(B), solve(T)
+        k = len(segment)
+        cases = 3 * k + 6
+        unit = np.eye(cases)
+        straight = cr.straight_rod(self.section, self.segments, np.zeros((cases, 3)))
+        loads = None
+        if k:
+            force = unit[:, : 3 * k].reshape(cases, k, 3)  # case 3 i + c: a unit force along c on point i
+            loads = cr.PointLoads(np.broadcast_to(segment, (cases, k)), np.broadcast_to(along, (cases, k)),
+                                  np.broadcast_to(offset, (cases, k, 3)), force)
+        g, _ = cr.gradient_and_hessian(straight, self.section, np.broadcast_to([1.0, 0.0, 0.0, 0.0], (cases, 4)),
+                                       unit[:, 3 * k : 3 * k + 3], unit[:, 3 * k + 3 :], loads=loads, hessian=False)
+        responses = -cr._cho_solve(self._H0_factor, g).T  # (6 N, cases)
+        return responses[:, : 3 * k], responses[:, 3 * k :]
 
     @staticmethod
     def _linear_positions(d: np.ndarray, segment: np.ndarray, along: np.ndarray, offset: np.ndarray) -> np.ndarray:

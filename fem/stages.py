@@ -113,17 +113,18 @@ BODY_FIELDS = (
 
 #: the solve's fields that only the linear tiers read, and those that only the nonlinear tier reads
 #: (fem.quasistatic, fem.finite_strain): each tier's cached episode is kept whatever the others' are
+REDUCED_TIER_ONLY = ("fidelity.solve.patches_per_tip", "fidelity.solve.patches_per_side")
 LINEAR_TIERS_ONLY = tuple(f"fidelity.solve.{f}" for f in ("rod_kinematics", "rod_coupling", "buckling_limit", "small_strain_limit",
-                                                            "contact_solver", "patches_per_tip", "patches_per_side"))
+                                                            "contact_solver")) + REDUCED_TIER_ONLY
 NONLINEAR_TIER_ONLY = tuple(f"fidelity.solve.{f}" for f in ("nonlinear_newton", "dynamics", "loss_factor", "steps_per_period"))
 
 
 def _solve_ignores(scene: Scene) -> tuple[str, ...]:
-    """The solve fields this scene's tier does not read (Stage.ignores): the reduced tier reads its patches."""
+    """The solve fields this scene's tier does not read (Stage.ignores)."""
     tier = scene.fidelity.solve.tier
     if tier == "nonlinear":
         return LINEAR_TIERS_ONLY
-    return NONLINEAR_TIER_ONLY + (("fidelity.solve.patches_per_tip", "fidelity.solve.patches_per_side") if tier == "linear" else ())
+    return NONLINEAR_TIER_ONLY + (REDUCED_TIER_ONLY if tier == "linear" else ())
 
 
 _solve_save, _solve_load = npz_io("episode.npz", "fem.quasistatic:Episode")

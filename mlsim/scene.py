@@ -697,16 +697,13 @@ class Scene(_Model):
         else:
             payload = {p: _jsonable(self.get(p)) for p in sorted(paths)}
         for field in exclude:
-            if paths is not None:
-                payload.pop(field, None)
-            for p in payload if paths is not None else ():
+            if paths is None:
+                _drop_dotted(payload, field)
+                continue
+            payload.pop(field, None)
+            for p in payload:
                 if field.startswith(p + "."):
-                    node = payload[p]
-                    *path, last = field[len(p) + 1 :].split(".")
-                    for key in path:
-                        node = node.get(key, {}) if isinstance(node, dict) else {}
-                    if isinstance(node, dict):
-                        node.pop(last, None)
+                    _drop_dotted(payload[p], field[len(p) + 1 :])
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
     def to_dotted(self) -> dict[str, Any]:
@@ -714,6 +711,15 @@ class Scene(_Model):
         out: dict[str, Any] = {}
         _flatten(self.model_dump(mode="json"), "", out)
         return out
+
+
+def _drop_dotted(data, dotted: str) -> None:
+    """Remove the entry at ``dotted`` ("a.b.c") from nested dicts, if it is there."""
+    *path, last = dotted.split(".")
+    for key in path:
+        data = data.get(key) if isinstance(data, dict) else None
+    if isinstance(data, dict):
+        data.pop(last, None)
 
 
 def resolve_material(name: str, overrides: dict[str, MaterialOverride]) -> Material:

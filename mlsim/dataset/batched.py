@@ -48,25 +48,18 @@ __all__ = ["BatchedChain", "ChainOutput", "resolve_device"]
 
 
 def resolve_device(requested: str = "auto", cuda_available: bool | None = None) -> tuple[str, str]:
-    """The torch device the batched chain runs on, and why (for the run log), as
-    :func:`mlsim.render.sensor_scene.resolve_device` picks the render's: ``"auto"`` takes CUDA where
-    torch finds a device, else the CPU; ``"cuda"`` raises, with the fix, where torch finds none.
-    ``cuda_available``: torch's answer (``torch.cuda.is_available()`` when None)."""
-    if requested not in ("auto", "cpu", "cuda"):
-        raise ValueError(f'device = "{requested}": choose "auto", "cpu" or "cuda"')
-    if requested == "cpu":
-        return "cpu", "device = cpu"
-    ok = torch.cuda.is_available() if cuda_available is None else bool(cuda_available)
-    if ok:
-        name = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "a device"
-        return "cuda", f"device = {requested}: torch finds CUDA ({name})"
-    if requested == "cuda":
-        from mlsim.errors import MlsimError
+    """The torch device the batched chain runs on, and why (for the run log):
+    :func:`mlsim.render.sensor_scene.choose_device` by torch's answer (``torch.cuda.is_available()`` when
+    ``cuda_available`` is None)."""
+    from mlsim.render.sensor_scene import choose_device
 
-        raise MlsimError(f'device = "cuda", but torch finds no CUDA device here (torch {torch.__version__}, '
-                           f'CUDA build {torch.version.cuda or "none"}, torch.cuda.is_available() is False): '
-                           'set device = "auto" (CUDA where it is, else the CPU) or device = "cpu"')
-    return "cpu", f"device = auto: no CUDA device (torch {torch.__version__}, torch.cuda.is_available() is False), cpu"
+    def status():
+        if torch.cuda.is_available() if cuda_available is None else bool(cuda_available):
+            return True, f"torch finds CUDA ({torch.cuda.get_device_name(0) if torch.cuda.is_available() else 'a device'})"
+        return False, (f"torch finds no CUDA device here (torch {torch.__version__}, CUDA build {torch.version.cuda or 'none'}, "
+                       "torch.cuda.is_available() is False)")
+
+    return choose_device(requested, "device", status)
 
 
 @dataclass

@@ -41,7 +41,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["VARIANT", "SPECTRAL_VARIANT", "DEVICES", "variant_for", "use_variant", "cuda_status", "variant_starts", "resolve_device",
+__all__ = ["VARIANT", "SPECTRAL_VARIANT", "DEVICES", "variant_for", "use_variant", "cuda_status", "variant_starts", "choose_device", "resolve_device",
            "SensorScene", "radiance_of"]
 
 VARIANT = "llvm_ad_mono"
@@ -114,20 +114,26 @@ def variant_starts(variant: str) -> tuple[bool, str]:
             mi.set_variant(before)
 
 
-def resolve_device(requested: str = "auto") -> tuple[str, str]:
-    """The device a render runs on, and why: ``"auto"`` takes CUDA where :func:`cuda_status` says it
-    starts, else the CPU; ``"cuda"`` raises (with the reason and the fix) where it does not."""
+def choose_device(requested: str, field: str, status) -> tuple[str, str]:
+    """The device ("cpu" or "cuda") a ``requested`` setting ("auto", "cpu", "cuda") of the scene or spec field
+    ``field`` gives, and why (for the run log): ``"auto"`` takes CUDA where ``status() -> (ok, why)`` says it
+    starts, else the CPU; ``"cuda"`` raises (with the reason and the fix) where it does not. The render's
+    (:func:`resolve_device`) and the dataset's batched chain's (:func:`mlsim.dataset.batched.resolve_device`)."""
     if requested not in ("auto",) + DEVICES:
-        raise ValueError(f'fidelity.render.device = "{requested}": choose "auto", "cpu" or "cuda"')
+        raise ValueError(f'{field} = "{requested}": choose "auto", "cpu" or "cuda"')
     if requested == "cpu":
-        return "cpu", "fidelity.render.device = cpu"
-    ok, why = cuda_status()
+        return "cpu", f"{field} = cpu"
+    ok, why = status()
     if ok:
-        return "cuda", f"fidelity.render.device = {requested}: {why}"
+        return "cuda", f"{field} = {requested}: {why}"
     if requested == "cuda":
-        raise RuntimeError(f'fidelity.render.device = "cuda", but CUDA is not available here: {why}. '
-                           'Set fidelity.render.device = "auto" (CUDA where it starts, else the CPU) or "cpu"')
-    return "cpu", f"fidelity.render.device = auto: no GPU ({why})"
+        raise RuntimeError(f'{field} = "cuda", but {why}: set {field} = "auto" (CUDA where it is, else the CPU) or {field} = "cpu"')
+    return "cpu", f"{field} = auto: no GPU ({why})"
+
+
+def resolve_device(requested: str = "auto") -> tuple[str, str]:
+    """The device a render runs on, and why (:func:`choose_device` by Mitsuba's :func:`cuda_status`)."""
+    return choose_device(requested, "fidelity.render.device", cuda_status)
 
 
 def radiance_of(photons_per_s, area_m2) -> np.ndarray:
