@@ -87,10 +87,15 @@ def _add_jtwj(J, w, scale, out, r0, c0):
 
 @njit(cache=True)
 def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffness, anchor, axial, g, D, O):
-    """One rod: fills g (N, 6), D and O (N, 6, 6) (overwritten); returns (energy (J),
-    the loads' work's size |F . (x_N - x_0)| + |sum_k f_k . (p_k - x_0)| (J): the trust region's
-    round-off scale). Arithmetic as fem.cosserat_rod.gradient_and_hessian and energy."""
+    """One rod: fills g (N, 6), D and O (N, 6, 6) (overwritten); returns (energy (J), the size of its
+    terms (J), the trust region's round-off scale: fem.cosserat_rod._round_off_scale). Arithmetic as
+    fem.cosserat_rod.gradient_and_hessian and energy."""
     n = q.shape[0]
+    reach = l  # max |x_i - x_0| + l: the lever of the round-off of the nodes' positions
+    for i in range(n + 1):
+        for k in range(3):
+            reach = max(reach, abs(x[i, k] - x[0, k]) + l)
+    internal = 0.0
     g[:] = 0.0
     D[:] = 0.0
     O[:] = 0.0
@@ -128,6 +133,7 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffn
             stored += (l * mu_a * (0.5 * lam * lam + 1.0 / lam - 1.5) if lam > 0.0 else np.inf) - 0.5 * l * (lam - 1.0) * (lam - 1.0) * S[2]
             nm[2] = mu_a * (lam - 1.0 / (lam * lam))
             lS[2] = l * mu_a * (1.0 + 2.0 / (lam * lam * lam))
+        internal += (abs(nm[0]) + abs(nm[1]) + abs(nm[2])) * reach
         for i in range(3):
             fi = R[i, 0] * nm[0] + R[i, 1] * nm[1] + R[i, 2] * nm[2]  # the spatial section force
             g[e, 3 + i] += fi
@@ -184,6 +190,7 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffn
             kap = 2.0 * pv[k] / lv
             m[k] = kap * Bk[k]
             stored += 0.5 * lv * kap * kap * Bk[k]
+            internal += abs(m[k]) * lv
             lvB[k] = lv * Bk[k]
         c0 = pv[1] * m[2] - pv[2] * m[1]
         c1 = pv[2] * m[0] - pv[0] * m[2]
@@ -228,6 +235,7 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffn
     # (p - a) . K (p - a) / 2: the dead force's terms with the spring's force f - K (p - a) in its place
     # (a spring's second-order term is a dead force's), plus J^T K J
     work_pts = 0.0
+    work_springs = 0.0
     fb = np.empty(3)
     pk = np.empty(3)
     fe = np.empty(3)
@@ -254,6 +262,7 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffn
                     acc += stiffness[kk, c, d] * (pk[d] - anchor[kk, d])
                 fe[c] -= acc
                 stored += 0.5 * (pk[c] - anchor[kk, c]) * acc
+                work_springs += abs(acc * (pk[c] - x[0, c]))
         f0, f1, f2 = fe[0], fe[1], fe[2]
         for c in range(3):
             fb[c] = Rp[0, c] * f0 + Rp[1, c] * f1 + Rp[2, c] * f2  # R_e^T f
@@ -294,7 +303,7 @@ def _evaluate_rod(x, q, clamp, l, S, Bk, F, M, seg, along, offset, force, stiffn
                         D[e - 1, 3 + i, 3 + j] += (1.0 - s) * (1.0 - s) * stiffness[kk, i, j]
                         O[e, 3 + i, j] += (1.0 - s) * KA[i, j]
                         O[e, 3 + i, 3 + j] += (1.0 - s) * s * stiffness[kk, i, j]
-    return stored - work_tip - work_pts, abs(work_tip) + abs(work_pts)
+    return stored - work_tip - work_pts, abs(work_tip) + abs(work_pts) + work_springs + internal
 
 
 @njit(cache=True)

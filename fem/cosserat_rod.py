@@ -544,10 +544,7 @@ def _newton(state: RodState, section: RodSection, clamp: np.ndarray, F: np.ndarr
             full = np.linalg.norm(step_s, axis=-1) > 0.99 * radius
             radius = np.where(ratio < 0.25, 0.25 * radius, np.where((ratio > 0.75) & full, np.minimum(2.0 * radius, 16.0 * MAX_TURN_RAD), radius))
             # near the answer the energy's change is below its round-off (either sign): then a lower imbalance is progress
-            work = np.abs(np.sum(F * (state.x[..., -1, :] - state.x[..., 0, :]), axis=-1))
-            if loads is not None:
-                work = work + np.abs(np.sum(loads.force_n * (loads.positions(state) - state.x[..., :1, :]), axis=(-2, -1)))
-            noise = 1e-12 * (np.abs(e_state) + work)
+            noise = 1e-12 * (np.abs(e_state) + _round_off_scale(state, section, clamp, F, loads))
             accept = (ratio > 1e-4) | ((actual >= -noise) & (_imbalance(gradient_and_hessian(trial, section, clamp, F, M, hessian=False, loads=loads)[0], tolerances) < i0))
             state = _where(todo & accept, trial, state)
             if np.all(radius[todo] < 1e-12):
@@ -570,6 +567,32 @@ def _newton(state: RodState, section: RodSection, clamp: np.ndarray, F: np.ndarr
     raise SolverError(f"cosserat rod: Newton did not converge in {max_iterations} iterations at {where}; unbalanced force "
                       f"{np.linalg.norm(blocks[..., 3:], axis=(-2, -1)).max():.3e} N (tolerance {np.min(tolerances[0]):.3e}), moment "
                       f"{np.linalg.norm(blocks[..., :3], axis=(-2, -1)).max():.3e} N m (tolerance {np.min(tolerances[1]):.3e})")
+
+
+def _round_off_scale(state: RodState, section: RodSection, clamp: np.ndarray, F: np.ndarray, loads: PointLoads | None) -> np.ndarray:
+    """The size (...) J of the energy's terms, against which the trust region judges a change as round-off: the
+    loads' work |F . (x_N - x_0)| + |sum_k f_k . (p_k - x_0)|, the springs' sum_k |K_k (p_k - a_k) . (p_k - x_0)|,
+    and the sections' forces and moments times the reach their nodes' round-off acts over, sum_e |n_e|_1 (max_i
+    |x_i - x_0|_inf + l) + sum_i |m_i|_1 l_i. (A rod near rest with only the springs of its inertia, fem.cosserat_dynamics,
+    has an energy of 1e-8 J whose round-off, from its nodes 1e-2 m from the origin, is that of its section forces'
+    work: its trust region stalled at 1.2-1.5 x its tolerance when judged against the energy alone.)
+    Mirrored by fem.cosserat_kernels._evaluate_rod."""
+    n = state.q.shape[-2]
+    l = section.length_m / n
+    x0 = state.x[..., :1, :]
+    work = np.abs(np.sum(F * (state.x[..., -1, :] - state.x[..., 0, :]), axis=-1))
+    if loads is not None:
+        p = loads.positions(state)
+        work = work + np.abs(np.sum(loads.force_n * (p - x0), axis=(-2, -1)))
+        if loads.stiffness_n_m is not None:
+            pull = np.einsum("...kij,...kj->...ki", loads.stiffness_n_m, p - loads.anchor_m)
+            work = work + np.sum(np.abs(pull * (p - x0)), axis=(-2, -1))
+    sigma, kappa = strains(state, section, clamp)
+    n_sec = sigma * section.S
+    n_sec[..., 2] = axial_force(1.0 + sigma[..., 2], section.axial_n, section.axial_law)[0]
+    reach = np.abs(state.x - x0).max(axis=(-2, -1)) + l
+    internal = reach * np.abs(n_sec).sum(axis=(-2, -1)) + np.sum(_voronoi(n, l)[:, None] * np.abs(kappa * section.B), axis=(-2, -1))
+    return work + internal
 
 
 def _cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:

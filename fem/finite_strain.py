@@ -56,7 +56,7 @@ from fem.indenters import Pose
 from fem.indenters import gap as indenter_gap
 from fem.nonlinear import SolverError, residual_and_tangent
 
-__all__ = ["run_nonlinear_episode", "centroid_fields", "rod_first_mode_rad_s", "dynamics_substeps", "dynamics_step_problems"]
+__all__ = ["run_nonlinear_episode", "centroid_fields", "rod_first_mode_rad_s", "rod_mass_per_length_kg_m", "dynamics_substeps", "dynamics_step_problems"]
 
 # Newton directions by GMRES on the tangent, preconditioned by an earlier factorised body tangent with
 # the current contact tangent taken exactly (ContactWoodbury): to this true relative residual (an inexact
@@ -726,14 +726,20 @@ def rod_first_mode_rad_s(scene) -> float:
     from fem.rod_kinematics import layered_bending_stiffness_n_m2
 
     g = RodArray.from_sensor(scene.sensor)
-    regions = ("absorber", "ml_layer", "core")
-    young = [scene.material(r).young_modulus_pa.value for r in regions]
-    rho = np.array([float(scene.material(r).density_kg_m3.value or 0.0) for r in regions])
+    young = [scene.material(r).young_modulus_pa.value for r in ("absorber", "ml_layer", "core")]
     bending = layered_bending_stiffness_n_m2(g.rod_radius_m, young, [g.absorber_m, g.ml_m])
+    return dynamics.cantilever_first_mode_rad_s(bending, rod_mass_per_length_kg_m(scene), g.rod_height_m)
+
+
+def rod_mass_per_length_kg_m(scene) -> float:
+    """The scene's rods' mass per length (kg/m): the absorber, ML layer and core rings' densities times their areas."""
+    from fem.geometry import RodArray
+
+    g = RodArray.from_sensor(scene.sensor)
+    rho = np.array([float(scene.material(r).density_kg_m3.value or 0.0) for r in ("absorber", "ml_layer", "core")])
     outer = g.rod_radius_m - np.array([0.0, g.absorber_m, g.absorber_m + g.ml_m])
     inner = np.append(outer[1:], 0.0).clip(min=0.0)
-    per_length = float(np.sum(rho * np.pi * (outer.clip(min=0.0) ** 2 - inner**2)))
-    return dynamics.cantilever_first_mode_rad_s(bending, per_length, g.rod_height_m)
+    return float(np.sum(rho * np.pi * (outer.clip(min=0.0) ** 2 - inner**2)))
 
 
 def dynamics_substeps(scene) -> int:
@@ -750,7 +756,8 @@ def dynamics_step_problems(scene) -> list[tuple]:
     or a step (1 / (fps x substeps)) longer than the rods' first bending period over
     ``fidelity.solve.steps_per_period`` (the sensor kind's check: ``mlsim check`` says it before a run)."""
     f = scene.fidelity.solve
-    if f.tier != "nonlinear" or f.dynamics == "quasi_static" or scene.load is None:
+    # the nonlinear tier's dynamics, and the fast tiers' Cosserat rods' (fem.quasistatic.rod_inertia), at the same steps
+    if not (f.tier == "nonlinear" or f.rod_kinematics == "cosserat") or f.dynamics == "quasi_static" or scene.load is None:
         return []
     regions = ("absorber", "ml_layer", "core")
     if any(not (scene.material(r).density_kg_m3.value or 0.0) > 0 for r in regions):

@@ -497,6 +497,14 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         raise ValueError(f'fidelity.solve.tier = "{settings.tier}": choose "reduced", "linear" or "nonlinear"')
     if settings.rod_kinematics in ("second_order", "cosserat") and settings.contact_solver != "admm":
         raise ValueError(f'fidelity.solve.rod_kinematics = "{settings.rod_kinematics}" needs fidelity.solve.contact_solver = "admm"')
+    rods_move = settings.dynamics != "quasi_static" and settings.rod_kinematics == "cosserat"
+    if rods_move:
+        from fem.finite_strain import dynamics_step_problems
+        from mlsim.errors import Problem, SceneError
+
+        problems = dynamics_step_problems(scene)
+        if problems:
+            raise SceneError([Problem(*p) for p in problems])
     if settings.dynamics != "quasi_static" and log is not None:
         log(quasi_static_warning(settings))
     timings: dict = {}
@@ -607,6 +615,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     rod_model = "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)"
     if exact and kinematics is not None:
         kinematics.holds = held
+        if rods_move:
+            kinematics.inertia = rod_inertia(scene)
         if held and log is not None:
             log('warning: fidelity.solve.rod_coupling = "held" is experimental: on one of two meshes of the default demo its tip '
                 "displacement was 21.6 % off the nonlinear tier (rods left bent against the face by friction in a release "
@@ -649,7 +659,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 bar(s + 1)
                 continue
             case = f"step {s} (t = {t * 1e3:.1f} ms)"
-            if REUSE_HOLDS and s > 0 and _holds(state, pose_old, target[s - 1]):
+            if REUSE_HOLDS and not rods_move and s > 0 and _holds(state, pose_old, target[s - 1]):
                 # the indenter is where the last step left it (a hold): a quasi-static step from a
                 # converged state to the same pose is that state (no slip increment, the same gaps),
                 # so the last solution is reused rather than re-confirmed
@@ -714,6 +724,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             u_now = u
             pose_old = pose
             forces[s] = info["f"]
+            if kinematics is not None and rods_move:
+                kinematics.end_step(s, info["f"])  # the rods' nodes and velocities: the next step's start
             if extras is not None and law.f_extra is not None:
                 extras[s] = law.f_extra
             normal_now = condensed.normal_force(law)
@@ -745,8 +757,9 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     t0 = time.perf_counter()
     T = mesh.n_tets
     loads = forces if extras is None else forces + extras  # the body carries the P-delta load too
-    # the fields are linear in the loads: recover them once per distinct load (holds and free steps repeat theirs)
-    first, frame_of = _distinct_rows(loads.reshape(S, -1))
+    # the fields are linear in the loads: recover them once per distinct load (holds and free steps repeat theirs);
+    # under the rods' inertia every step (a rod swinging free after its release carries no force)
+    first, frame_of = _distinct_rows(loads.reshape(S, -1)) if not (rods_move and m > 0) else (np.arange(S), np.arange(S))
     U = len(first)
     if settings.tier == "reduced":
         # (its sums run on numba's threads; BLAS's, spinning between its small products, fought them
@@ -765,7 +778,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         reaction = body.reaction(Xs, F)[frame_of] + (0.0 if extras is None else extras.sum(axis=1))
         total = forces.sum(axis=1)
     if kinematics is not None:
-        disp = disp + np.stack([kinematics.vertex_correction(disp[i], mesh.points, forces=forces[first[i]]) for i in range(U)])
+        step_of = (lambda i: {"step": first[i]}) if rods_move else (lambda i: {})  # the rods' answers by step under inertia
+        disp = disp + np.stack([kinematics.vertex_correction(disp[i], mesh.points, forces=forces[first[i]], **step_of(i)) for i in range(U)])
     if exact and m > 0:
         # the bent rods' section resultants in their own frames (fem.rod_exact: Saint-Venant's recovery through
         # each loaded rod's responses to unit tip loads, made by this tier's own field recovery)
@@ -782,7 +796,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 s_unit = body.stress(body.solve(points.W @ flat.reshape(J * 6, 3 * m).T))
             s_unit = s_unit.reshape(J, 6, 6, T)
             tet_z = mesh.points[mesh.tets][:, :, 2].mean(axis=1)
-            stress = stress + np.stack([kinematics.stress_correction(forces[first[i]], s_unit, unit_rods, tet_z, mesh.tet_rod) for i in range(U)])
+            stress = stress + np.stack([kinematics.stress_correction(forces[first[i]], s_unit, unit_rods, tet_z, mesh.tet_rod, **step_of(i))
+                                        for i in range(U)])
     timings["fields"] = time.perf_counter() - t0
     # each step's share of the field recovery: the distinct loads share it, a repeat is a copy
     timings["fields_step_ms"] = np.where(np.isin(np.arange(S), first), 1e3 * timings["fields"] / U, 0.0).tolist()
@@ -830,12 +845,29 @@ REUSE_HOLDS = True
 
 
 def quasi_static_warning(settings: SolveSettings) -> str:
-    """The run log's line for a scene that asks the linear tiers for dynamics: they have no inertia, and
-    solve each step as an equilibrium (the solve's key leaves the field out for them, fem.stages)."""
+    """The run log's line for a scene that asks the linear tiers for dynamics: without Cosserat rods they have
+    no inertia, and solve each step as an equilibrium (the solve's key leaves the field out for them,
+    fem.stages); with them the rods move (:func:`rod_inertia`) and the base stays quasi-static."""
+    if settings.rod_kinematics == "cosserat":
+        return (f'fidelity.solve.dynamics = "{settings.dynamics}": the {settings.tier} tier\'s Cosserat rods have their inertia '
+                "(fem.cosserat_dynamics: backward Euler, lumped masses, the damping of fidelity.solve.loss_factor at their first "
+                "mode); the base is quasi-static")
     return (f'warning: fidelity.solve.dynamics = "{settings.dynamics}" is the nonlinear tier\'s: the {settings.tier} tier has no inertia '
             "and solves each step as an equilibrium (quasi-static); a rod that buckles or snaps back does so there within a step "
             '(the swipe over 12 mm rods: 24-62 % off the dynamic reference, docs/stages/solve.md); use fidelity.solve.tier = "nonlinear" '
             "for its dynamics")
+
+
+def rod_inertia(scene) -> "rod_exact.cd.RodInertia":
+    """The Cosserat rods' backward Euler inertia of the scene (:class:`fem.cosserat_dynamics.RodInertia`): the
+    layers' mass per length, the solve's step 1 / (fps x substeps), and mass-proportional damping a_M = eta
+    omega_1 (``fidelity.solve.loss_factor``), the nonlinear tier's damping ratio eta / 2 at the rods' first
+    bending mode (:func:`fem.finite_strain.rod_first_mode_rad_s`)."""
+    from fem.finite_strain import rod_first_mode_rad_s, rod_mass_per_length_kg_m
+
+    f = scene.fidelity.solve
+    return rod_exact.cd.RodInertia(rod_mass_per_length_kg_m(scene), 1.0 / (scene.camera.fps * f.substeps),
+                                   f.loss_factor * rod_first_mode_rad_s(scene))
 
 
 def _holds(state: trajectory.IndenterState, pose_old: Pose, last_target_n: float) -> bool:

@@ -66,6 +66,14 @@ The rods' axial law is neo-Hookean (:data:`AXIAL_LAW`, :func:`fem.cosserat_rod.a
 tier's material: the demo's press compresses its rods by about 11 %, where that law is 12.9 % stiffer than the
 linear one, and the recovered section stress is Cauchy's (on the current area, x lambda).
 
+Dynamics (``fidelity.solve.dynamics = "backward_euler"``): each rod's solve is its backward Euler step
+(:mod:`fem.cosserat_dynamics`: lumped masses, mass-proportional damping at the nonlinear tier's ratio at the first
+mode), from the last step's nodes and velocities (:meth:`CosseratKinematics.end_step`); a rod released from the
+contact keeps moving and is solved until it rests; the body carries the rods' inertial reaction in the P-delta
+load and the roots turn under it. The base has no inertia. The tiny scene's rods released from a drag ring as the
+nonlinear tier's dynamics: 3.3 / 2.7 / 2.0 % over the frames, the tips' history after the release 9.9 %
+(tests/test_rod_exact.py).
+
 What this is not: a finite-strain body; the base is linear.
 Tiny scene's press and slide against the nonlinear tier (docs/stages/solve.md): 2.0 / 2.3 / 2.0 %
 on rod-base von Mises, per-rod force and tip displacement on the tests' shipped mesh (tests/test_rod_exact.py;
@@ -77,6 +85,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from fem import cosserat_dynamics as cd
 from fem import cosserat_rod as cr
 from fem.rod_kinematics import RodSections, _face_rotation_rows, resultant_change
 
@@ -89,6 +98,11 @@ AXIAL_LAW = "neo_hookean"
 #: segments per rod. Bisshopp and Drucker's cantilever at alpha = 3 is within 0.3 % at 8 segments
 #: (second order: 0.07 % at 32, tests/test_cosserat_rod.py), below the tiers' stated errors
 SEGMENTS = 8
+
+#: under inertia the rods' roots turn under the loads the body carries (:meth:`CosseratKinematics._rod_answers`), found
+#: by a fixed point on those loads, to this fraction of the rods' total resultant, in at most ROOT_ITERATIONS solves
+ROOT_RTOL = 1e-3
+ROOT_ITERATIONS = 4
 
 
 
@@ -188,6 +202,12 @@ class CosseratKinematics:
     round_relaxation = 0.15
     round_rtol = 1e-3
     max_rounds = 60
+    #: the rods' backward Euler inertia (fem.cosserat_dynamics; ``fidelity.solve.dynamics = "backward_euler"``), or
+    #: None: each step an equilibrium. Set per episode by fem.quasistatic, which calls :meth:`end_step` after each step
+    inertia: cd.RodInertia | None = None
+    #: a rod leaves the moving set (solved without contact) when its nodes' speed is below this (m/s) and it
+    #: carries no force: backward Euler then takes it to rest within a step's travel of 1e-9 m at the sensor's steps
+    REST_SPEED_M_S = 1e-6
 
     def __init__(self, sections: RodSections, section: cr.RodSection, A: np.ndarray, obs_0: np.ndarray, X: np.ndarray, point_rod: np.ndarray,
                  segments: int = SEGMENTS):
@@ -212,6 +232,11 @@ class CosseratKinematics:
         self._warm: dict[int, cr.RodState] = {}
         self._last_answers = (None, [])  # (forces, _answers' list): the field recovery asks twice per distinct load
         self._held: dict[bytes, list] = {}  # the contact loop's held answers by their forces (the field recovery's)
+        # under inertia: the last step's rods, {rod: (nodes x_n (N + 1, 3) m, velocities v_n (N + 1, 3) m/s)}, of the
+        # rods loaded or moving then, and each step's answers (the field recovery's: a rod swinging free after its
+        # release carries no force, so its answers are not a function of the forces)
+        self._motion: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._by_step: dict[int, list] = {}
         # guard(f): raises where the forces f (m, 3) N load a rod past what dead loads can follow (the tier's
         # buckling check, fem.quasistatic._check_buckling), before any rod is solved under them
         self.guard = None
@@ -262,10 +287,15 @@ class CosseratKinematics:
         psi = blocks[segment, :3]
         return (1.0 - along)[:, None] * node[segment] + along[:, None] * node[segment + 1] + np.cross(psi, offset)
 
-    def solve_rods(self, f: np.ndarray, hold=None) -> dict[int, tuple[cr.RodState, cr.PointLoads, np.ndarray, np.ndarray]]:
+    def solve_rods(self, f: np.ndarray, hold=None, root_load: np.ndarray | None = None) -> dict[int, tuple[cr.RodState, cr.PointLoads, np.ndarray, np.ndarray, np.ndarray]]:
         """Each loaded rod in equilibrium under its points' forces f (m, 3) N, clamped where the body puts its
         root, all in one batch (:func:`fem.cosserat_rod.solve_static`), each from its last answer:
-        {rod: (state, its loads, root translation, root rotation)}.
+        {rod: (state, its loads, root translation, root rotation, its nodes' inertial forces (N + 1, 3) N)}.
+
+        Under :attr:`inertia` the solve is the step's backward Euler one (:mod:`fem.cosserat_dynamics`: a spring per
+        node to its inertial prediction from the last step's :meth:`end_step`), and the rods still moving from it
+        are solved too, loaded or not; without, the inertial forces are zero. ``root_load`` (m, 3) N: the roots where
+        the body puts them under f + root_load (default f).
 
         ``hold`` = (q_frozen (m, 3) m, f_pd (m, 3) N, K (m, 3, 3) N/m), the Robin coupling: each point is
         also held by the contact's stiffness K to where the contact round put it, a = X + u_r + theta_r x
@@ -275,15 +305,16 @@ class CosseratKinematics:
         grips its tip, as the face does. Without: dead loads, and the guard (if set) runs first."""
         if self.guard is not None and hold is None:
             self.guard(f)
-        u_r, th_r = self.root_motion(f)
-        loaded = [j for j, pts in enumerate(self._points) if len(pts) and np.any(f[pts])]
+        u_r, th_r = self.root_motion(f if root_load is None else f + root_load)
+        loaded = [j for j, pts in enumerate(self._points) if len(pts) and (np.any(f[pts]) or j in self._motion)]
         if not loaded:
             return {}
         K = max(len(self._points[j]) for j in loaded)
         B = len(loaded)
         segment, along = np.zeros((B, K), dtype=int), np.zeros((B, K))
         offset, force = np.zeros((B, K, 3)), np.zeros((B, K, 3))
-        stiffness, anchor = (np.zeros((B, K, 3, 3)), np.zeros((B, K, 3))) if hold is not None else (None, None)
+        springs = hold is not None or self.inertia is not None
+        stiffness, anchor = (np.zeros((B, K, 3, 3)), np.zeros((B, K, 3))) if springs else (None, None)
         for b, j in enumerate(loaded):
             pts = self._points[j]
             k = len(pts)
@@ -304,27 +335,61 @@ class CosseratKinematics:
             if warm is not None:  # the last answer, carried to today's root
                 x[b], q[b] = warm.x - warm.x[:1] + roots[b], warm.q
         loads = cr.PointLoads(segment, along, offset, force, stiffness, anchor)
+        nodes = None
+        if self.inertia is not None:
+            # the last step's nodes and velocities; a rod at rest then: straight where the body puts its root now
+            x_n, v_n = straight.x.copy(), np.zeros_like(straight.x)
+            for b, j in enumerate(loaded):
+                if j in self._motion:
+                    x_n[b], v_n[b] = self._motion[j]
+            nodes = self.inertia.springs(self.section, x_n, v_n)
+            loads = cd.joined(loads, nodes)
         try:
             state = cr.solve_static(self.section, self.segments, loads=loads, clamp=clamps, root_m=roots, start=cr.RodState(x, q), rtol=1e-8)
         except cr.SolverError:
             # a last answer on another branch or too far: from the straight rods, in increments
             state = cr.solve_static(self.section, self.segments, loads=loads, clamp=clamps, root_m=roots, start=straight, increments=4, rtol=1e-8)
+        inertial = np.zeros_like(state.x) if nodes is None else self.inertia.nodal_forces(nodes, state)
         out = {}
         for b, j in enumerate(loaded):
             k = len(self._points[j])
             rod = cr.RodState(state.x[b], state.q[b])
             self._warm[j] = rod
             springs = (None, None) if hold is None else (stiffness[b, :k], anchor[b, :k])
-            out[j] = (rod, cr.PointLoads(segment[b, :k], along[b, :k], offset[b, :k], force[b, :k], *springs), u_r[j], th_r[j])
+            out[j] = (rod, cr.PointLoads(segment[b, :k], along[b, :k], offset[b, :k], force[b, :k], *springs), u_r[j], th_r[j], inertial[b])
         return out
+
+    def end_step(self, step: int, f: np.ndarray) -> None:
+        """Under :attr:`inertia`, after the contact loop's step ``step`` converged at point forces f (m, 3) N: its
+        rods' nodes and velocities become the next step's start (a rod unloaded and slower than REST_SPEED_M_S
+        is at rest), and its answers are kept for the field recovery (:meth:`vertex_correction`,
+        :meth:`stress_correction` with ``step``). Without inertia: nothing."""
+        if self.inertia is None:
+            return
+        f = np.asarray(f, dtype=float)
+        answers = self._answers(f)
+        self._by_step[step] = answers
+        motion = {}
+        for j, state, u_r, th_r, *_ in answers:
+            x_n = self._motion[j][0] if j in self._motion else cr.straight_rod(
+                self.section, self.segments, self.root_X[j] + u_r, _rotation_quaternion(th_r[None])[0]).x
+            v = self.inertia.velocity(state.x, x_n)
+            if np.any(f[self._points[j]]) or np.abs(v).max() > self.REST_SPEED_M_S:
+                motion[j] = (state.x.copy(), v)
+        self._motion = motion
+        # the answers by forces hold within a step only: the same forces at another step meet other velocities
+        self._held.clear()
+        self._last_answers = (None, [])
 
     # --- the interface of the contact loop --------------------------------------------------------------
 
-    def _answers(self, f: np.ndarray, hold=None) -> list:
+    def _answers(self, f: np.ndarray, hold=None, step: int | None = None) -> list:
         """:meth:`_rod_answers` as a list, reused when asked again for the same forces. A held answer (the
         contact loop's, ``hold`` as :meth:`solve_rods`) is kept per forces for the episode: the field recovery
         asks for it again after the steps, without the hold (under dead loads alone a rod past its free Euler
-        load would buckle in its solve)."""
+        load would buckle in its solve). Under inertia the field recovery asks by ``step`` (:meth:`end_step`)."""
+        if step is not None and self.inertia is not None:
+            return self._by_step[step]
         if hold is not None:
             answers = list(self._rod_answers(f, hold))
             self._held[f.tobytes()] = answers
@@ -340,13 +405,40 @@ class CosseratKinematics:
 
     def _rod_answers(self, f: np.ndarray, hold=None):
         """Per loaded rod j: (j, state, root translation, root rotation, P-delta load on its points (k, 3) N,
-        the straight rod's linear dofs under its forces, that load and the springs' pull).
+        the straight rod's linear dofs under its forces, that load and the springs' pull, its nodes' inertial
+        forces (N + 1, 3) N).
 
         Where held, the springs' pull enters the linear rod and the P-delta moment as its resultant, the force
         F_s and the moment M_s about the tip in the bent rod (where the springs act), at the straight rod's tip:
         the pulls are single points' penalty forces that nearly cancel, and their moment about the straight
-        rod's points is not the one the bent rod carries (a face turned by 0.2 rad misplaces it by 40 x)."""
-        for j, (state, loads, u_r, th_r) in self.solve_rods(f, hold).items():
+        rod's points is not the one the bent rod carries (a face turned by 0.2 rad misplaces it by 40 x).
+
+        Under inertia the body carries the rod's inertial forces as their resultant on the loaded points and
+        their moment about the root in the bent rod within the P-delta load's (the base moves under the rod's
+        whole root reaction); they stay out of the linear rod, so q holds the rod's dynamic shape. And the roots
+        turn under those loads too (the rods' free vibration sees the base's compliance): a fixed point on them,
+        from the round's own (held) or none, to ROOT_RTOL. Without it the tiny scene's rods, released from a drag,
+        rang about 6 % fast, their tips' history after the release 19 % off the nonlinear tier's (10 % with).
+        In statics the roots turn under f alone, as measured in the figures of the module's docstring (under the
+        loads too, the tiny scene's flat press at 1 x moved by 0.3-0.5 points, to 2.3 / 2.2 / 1.6 % from 1.8 / 1.7 /
+        1.9 %)."""
+        if self.inertia is None:
+            return list(self._rod_answers_at(f, hold, None))
+        pd = np.array(hold[1], dtype=float) if hold is not None else np.zeros_like(f)
+        for _ in range(ROOT_ITERATIONS):
+            answers = list(self._rod_answers_at(f, hold, pd))
+            new = np.zeros_like(f)
+            for j, _, _, _, load, _, _ in answers:
+                new[self._points[j]] = load
+            done = self.resultant_change(new - pd) <= max(ROOT_RTOL * (self.resultant_change(f) + self.resultant_change(new)), 1e-12)
+            pd = new
+            if done:
+                break
+        return answers
+
+    def _rod_answers_at(self, f: np.ndarray, hold, root_load):
+        """:meth:`_rod_answers` with the roots under f + root_load."""
+        for j, (state, loads, u_r, th_r, f_in) in self.solve_rods(f, hold, root_load).items():
             pts = self._points[j]
             x_r = self.root_X[j] + u_r
             p = loads.positions(state)
@@ -357,17 +449,20 @@ class CosseratKinematics:
             tip_X = self.root_X[j] + np.array([0.0, 0.0, self.sections.length_m])
             # the root moment in the bent rod less the straight one's, of the forces and the springs' resultant
             moment = (np.sum(np.cross(p - x_r, fj) - np.cross(self.X[pts] - self.root_X[j], fj), axis=0)
-                      + np.cross(state.x[-1] - x_r - (tip_X - self.root_X[j]), F_s))
-            # the horizontal load on the loaded points (weights |f_k|) whose root moment is the horizontal difference
+                      + np.cross(state.x[-1] - x_r - (tip_X - self.root_X[j]), F_s) + np.sum(np.cross(state.x - x_r, f_in), axis=0))
+            # the inertial resultant and a horizontal load on the loaded points (weights |f_k|) whose root moment is
+            # the rest of the horizontal difference
             w = np.linalg.norm(fj, axis=1)
             w = w / w.sum() if w.sum() > 0.0 else np.full(len(w), 1.0 / len(w))
+            F_in = f_in.sum(axis=0)
+            moment = moment - np.cross(w @ (self.X[pts] - self.root_X[j]), F_in)
             lever = float(np.sum(w * (self.X[pts, 2] - self.root_X[j, 2])))
             f_pd = np.zeros(3)
             if lever > 0.0:
                 f_pd[:2] = -np.cross([0.0, 0.0, 1.0], [moment[0], moment[1], 0.0])[:2] / lever
-            load = w[:, None] * f_pd
+            load = w[:, None] * (f_pd + F_in)
             d_lin = self._linear_dofs(j, fj + load, F_s, M_s)
-            yield j, state, u_r, th_r, load, d_lin
+            yield j, state, u_r, th_r, load, d_lin, f_in
 
     def _nonlinear_part(self, j: int, state: cr.RodState, u_r, th_r, d_lin, Y: np.ndarray) -> np.ndarray:
         """Points Y (k, 3) m of rod j carried by the rod in ``state`` less the same rod linearised (q's rule)."""
@@ -383,7 +478,7 @@ class CosseratKinematics:
         f = np.asarray(f_points, dtype=float)
         q = np.zeros_like(f)
         load = np.zeros_like(f)
-        for j, state, u_r, th_r, load_j, d_lin in self._answers(f, hold):
+        for j, state, u_r, th_r, load_j, d_lin, _ in self._answers(f, hold):
             pts = self._points[j]
             load[pts] = load_j
             q[pts] = self._nonlinear_part(j, state, u_r, th_r, d_lin, self.X[pts])
@@ -392,7 +487,7 @@ class CosseratKinematics:
     def q(self, f: np.ndarray) -> np.ndarray:
         return self.q_and_load(f)[0]
 
-    def vertex_correction(self, U: np.ndarray, points: np.ndarray, forces: np.ndarray | None = None) -> np.ndarray:
+    def vertex_correction(self, U: np.ndarray, points: np.ndarray, forces: np.ndarray | None = None, step: int | None = None) -> np.ndarray:
         """The nonlinear part (P, 3) m of the rods' vertex displacements at point forces ``forces`` (m, 3) N
         (U (P, 3), the linear displacement, only gives the shape): per loaded rod, each vertex carried by the
         Cosserat rod as a point of it (its height's segment, its offset from the axis) less the same rod
@@ -401,7 +496,7 @@ class CosseratKinematics:
         if forces is None:
             return out
         sec = self.sections
-        for j, state, u_r, th_r, _, d_lin in self._answers(np.asarray(forces, dtype=float)):
+        for j, state, u_r, th_r, _, d_lin, _ in self._answers(np.asarray(forces, dtype=float), step=step):
             verts = sec.vertices[j]
             verts = verts[points[verts, 2] >= sec.base_z_m - 1e-7]
             out[verts] = self._nonlinear_part(j, state, u_r, th_r, d_lin, points[verts])
@@ -435,14 +530,16 @@ class CosseratKinematics:
             out.append(loads)
         return (np.array(out) if out else np.zeros((0, 6, len(self.X), 3))), np.array(rods, dtype=int)
 
-    def stress_correction(self, f: np.ndarray, unit_stress: np.ndarray, rods: np.ndarray, tet_z: np.ndarray, tet_rod: np.ndarray) -> np.ndarray:
+    def stress_correction(self, f: np.ndarray, unit_stress: np.ndarray, rods: np.ndarray, tet_z: np.ndarray, tet_rod: np.ndarray,
+                          step: int | None = None) -> np.ndarray:
         """The stress (6, T) Pa to add to the linear body's under f + f_pd (f (m, 3) N the contact forces):
         in each loaded rod's tets, Saint-Venant's recovery of the difference between the bent rod's section
         resultants (in the section's own frame) and those the linear body carries, through the rod's own
         responses to unit tip loads, ``unit_stress`` (J, 6, 6, T) of the rods ``rods`` (J,) (from
         :meth:`unit_tip_loads`). tet_z (T,) m the tets' centroid heights, tet_rod (T,) their mesh rods.
 
-        A tet at height z sees the resultant (F, M) of the loads above it. The unit tip load k gives there
+        A tet at height z sees the resultant (F, M) of the loads above it (under inertia, and of the nodes'
+        inertial forces above it, :meth:`solve_rods`). The unit tip load k gives there
         the resultant T(z) e_k, T = [[I, 0], [(z_tip - z) [e_z]x, I]], so the section's response to a
         resultant r is unit_stress T(z)^-1 r. Exact for a prismatic rod away from the loads (Saint-Venant's
         principle); near the tip face the loads' local stress is the linear body's, and the resultants'
@@ -450,14 +547,14 @@ class CosseratKinematics:
         out = np.zeros(unit_stress.shape[2:])
         if not len(rods):
             return out
-        answers = {j: (state, load) for j, state, _, _, load, _ in self._answers(np.asarray(f, dtype=float))}
+        answers = {j: (state, load, f_in) for j, state, _, _, load, _, f_in in self._answers(np.asarray(f, dtype=float), step=step)}
         sec = self.sections
         tip_z = sec.base_z_m + sec.length_m
         l = sec.length_m / self.segments
         for i, j in enumerate(rods):
             if j not in answers:
                 continue
-            state, load = answers[j]
+            state, load, f_in = answers[j]
             pts = self._points[j]
             fk = np.asarray(f, dtype=float)[pts]
             on = np.flatnonzero((tet_rod == sec.rods[j]) & (tet_z >= sec.base_z_m))
@@ -471,6 +568,10 @@ class CosseratKinematics:
             above = self.X[pts, 2][None, :] > z[:, None]  # (n, k)
             F_ex = above @ fk
             M_ex = np.einsum("nk,nkc->nc", above, np.cross(p[None, :, :] - centre[:, None, :], fk[None]))
+            if self.inertia is not None:  # the inertial forces of the nodes above the section (at arc length i l)
+                node_above = (np.arange(self.segments + 1) * l)[None, :] > h[:, None]
+                F_ex = F_ex + node_above @ f_in
+                M_ex = M_ex + np.einsum("ni,nic->nc", node_above, np.cross(state.x[None, :, :] - centre[:, None, :], f_in[None]))
             r_ex = np.concatenate([np.einsum("nji,nj->ni", R, F_ex), np.einsum("nji,nj->ni", R, M_ex)], axis=1)
             g = fk + load
             axis = np.column_stack([np.broadcast_to(sec.centre[j, :2], (len(z), 2)), z])

@@ -112,7 +112,8 @@ BODY_FIELDS = (
 
 
 #: the solve's fields that only the linear tiers read, and those that only the nonlinear tier reads
-#: (fem.quasistatic, fem.finite_strain): each tier's cached episode is kept whatever the others' are
+#: (fem.quasistatic, fem.finite_strain): each tier's cached episode is kept whatever the others' are (the
+#: dynamics' fields are also read by the linear tiers' Cosserat rods, fem.quasistatic.rod_inertia)
 REDUCED_TIER_ONLY = ("fidelity.solve.patches_per_tip", "fidelity.solve.patches_per_side")
 LINEAR_TIERS_ONLY = tuple(f"fidelity.solve.{f}" for f in ("rod_kinematics", "rod_coupling", "buckling_limit", "small_strain_limit",
                                                             "contact_solver")) + REDUCED_TIER_ONLY
@@ -124,7 +125,10 @@ def _solve_ignores(scene: Scene) -> tuple[str, ...]:
     tier = scene.fidelity.solve.tier
     if tier == "nonlinear":
         return LINEAR_TIERS_ONLY
-    return NONLINEAR_TIER_ONLY + (REDUCED_TIER_ONLY if tier == "linear" else ())
+    nonlinear_only = NONLINEAR_TIER_ONLY
+    if scene.fidelity.solve.rod_kinematics == "cosserat":  # its rods' inertia reads the dynamics' fields (fem.quasistatic.rod_inertia)
+        nonlinear_only = ("fidelity.solve.nonlinear_newton",)
+    return nonlinear_only + (REDUCED_TIER_ONLY if tier == "linear" else ())
 
 
 _solve_save, _solve_load = npz_io("episode.npz", "fem.quasistatic:Episode")

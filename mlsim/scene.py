@@ -550,7 +550,9 @@ class SolveFidelity(_Model):
     rod_coupling: Literal["dead", "held"] = "dead"
     # nonlinear tier: "quasi_static" (each step an equilibrium: no answer past a limit point, where a rod
     # buckles or snaps back) or "backward_euler" (implicit dynamics with the elastomer's inertia and damping,
-    # energy-stable at any step; fem.dynamics, fem.finite_strain): the swipe that buckles rods and releases them
+    # energy-stable at any step; fem.dynamics, fem.finite_strain): the swipe that buckles rods and releases them.
+    # The linear tiers with rod_kinematics = "cosserat": the rods' inertia (fem.cosserat_dynamics; the base
+    # quasi-static); other rod kinematics have none and say so in the run log
     dynamics: Literal["quasi_static", "backward_euler"] = "quasi_static"
     # dynamics: the elastomer's loss factor eta (not given in SPEC 1.2; 0.1, the middle of unfilled silicone
     # rubbers' 0.05-0.2 at room temperature and audio frequencies, Nashif, Jones and Henderson, "Vibration

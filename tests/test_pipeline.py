@@ -79,6 +79,11 @@ def test_a_tier_keeps_its_episode_when_fields_it_does_not_read_change():
     assert stage_key(linear.with_values({"fidelity.solve.loss_factor": 0.2}), "solve") == key
     assert stage_key(linear.with_values({"fidelity.solve.patches_per_tip": 3}), "solve") == key  # the reduced tier's
     assert stage_key(linear.with_values({"fidelity.solve.rod_kinematics": "cosserat"}), "solve") != key
+    # Cosserat rods read the dynamics (their inertia, fem.quasistatic.rod_inertia), not the nonlinear tier's Newton
+    cosserat = linear.with_values({"fidelity.solve.rod_kinematics": "cosserat"})
+    key = stage_key(cosserat, "solve")
+    assert stage_key(cosserat.with_values({"fidelity.solve.loss_factor": 0.2}), "solve") != key
+    assert stage_key(cosserat.with_values({"fidelity.solve.nonlinear_newton": "penalty"}), "solve") == key
     reduced = scene.with_values({"fidelity.solve.tier": "reduced"})
     assert stage_key(reduced.with_values({"fidelity.solve.patches_per_tip": 3}), "solve") != stage_key(reduced, "solve")
 
