@@ -498,13 +498,6 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     if settings.rod_kinematics in ("second_order", "cosserat") and settings.contact_solver != "admm":
         raise ValueError(f'fidelity.solve.rod_kinematics = "{settings.rod_kinematics}" needs fidelity.solve.contact_solver = "admm"')
     rods_move = settings.dynamics != "quasi_static" and settings.rod_kinematics == "cosserat"
-    if rods_move:
-        from fem.finite_strain import dynamics_step_problems
-        from mlsim.errors import Problem, SceneError
-
-        problems = dynamics_step_problems(scene)
-        if problems:
-            raise SceneError([Problem(*p) for p in problems])
     if settings.dynamics != "quasi_static" and log is not None:
         log(quasi_static_warning(settings))
     timings: dict = {}
@@ -778,8 +771,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         reaction = body.reaction(Xs, F)[frame_of] + (0.0 if extras is None else extras.sum(axis=1))
         total = forces.sum(axis=1)
     if kinematics is not None:
-        step_of = (lambda i: {"step": first[i]}) if rods_move else (lambda i: {})  # the rods' answers by step under inertia
-        disp = disp + np.stack([kinematics.vertex_correction(disp[i], mesh.points, forces=forces[first[i]], **step_of(i)) for i in range(U)])
+        by_step = [{"step": s} if rods_move else {} for s in first]  # under inertia the rods' answers are by step
+        disp = disp + np.stack([kinematics.vertex_correction(disp[i], mesh.points, forces=forces[first[i]], **by_step[i]) for i in range(U)])
     if exact and m > 0:
         # the bent rods' section resultants in their own frames (fem.rod_exact: Saint-Venant's recovery through
         # each loaded rod's responses to unit tip loads, made by this tier's own field recovery)
@@ -796,7 +789,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 s_unit = body.stress(body.solve(points.W @ flat.reshape(J * 6, 3 * m).T))
             s_unit = s_unit.reshape(J, 6, 6, T)
             tet_z = mesh.points[mesh.tets][:, :, 2].mean(axis=1)
-            stress = stress + np.stack([kinematics.stress_correction(forces[first[i]], s_unit, unit_rods, tet_z, mesh.tet_rod, **step_of(i))
+            stress = stress + np.stack([kinematics.stress_correction(forces[first[i]], s_unit, unit_rods, tet_z, mesh.tet_rod, **by_step[i])
                                         for i in range(U)])
     timings["fields"] = time.perf_counter() - t0
     # each step's share of the field recovery: the distinct loads share it, a repeat is a copy
@@ -862,9 +855,14 @@ def rod_inertia(scene) -> "rod_exact.cd.RodInertia":
     """The Cosserat rods' backward Euler inertia of the scene (:class:`fem.cosserat_dynamics.RodInertia`): the
     layers' mass per length, the solve's step 1 / (fps x substeps), and mass-proportional damping a_M = eta
     omega_1 (``fidelity.solve.loss_factor``), the nonlinear tier's damping ratio eta / 2 at the rods' first
-    bending mode (:func:`fem.finite_strain.rod_first_mode_rad_s`)."""
-    from fem.finite_strain import rod_first_mode_rad_s, rod_mass_per_length_kg_m
+    bending mode (:func:`fem.finite_strain.rod_first_mode_rad_s`). A step too coarse for that mode is refused
+    as the nonlinear tier's (:func:`fem.finite_strain.dynamics_step_problems`, also the scene's check)."""
+    from fem.finite_strain import dynamics_step_problems, rod_first_mode_rad_s, rod_mass_per_length_kg_m
+    from mlsim.errors import Problem, SceneError
 
+    problems = dynamics_step_problems(scene)
+    if problems:
+        raise SceneError([Problem(*p) for p in problems])
     f = scene.fidelity.solve
     return rod_exact.cd.RodInertia(rod_mass_per_length_kg_m(scene), 1.0 / (scene.camera.fps * f.substeps),
                                    f.loss_factor * rod_first_mode_rad_s(scene))

@@ -313,8 +313,7 @@ class CosseratKinematics:
         B = len(loaded)
         segment, along = np.zeros((B, K), dtype=int), np.zeros((B, K))
         offset, force = np.zeros((B, K, 3)), np.zeros((B, K, 3))
-        springs = hold is not None or self.inertia is not None
-        stiffness, anchor = (np.zeros((B, K, 3, 3)), np.zeros((B, K, 3))) if springs else (None, None)
+        stiffness, anchor = (np.zeros((B, K, 3, 3)), np.zeros((B, K, 3))) if hold is not None else (None, None)
         for b, j in enumerate(loaded):
             pts = self._points[j]
             k = len(pts)
@@ -326,9 +325,7 @@ class CosseratKinematics:
                 anchor[b, :k] = (self.X[pts] + u_r[j] + np.cross(th_r[j], self.X[pts] - self.root_X[j])
                                  + self._linear_positions(d_lin, *self._attach[j]) + q_frozen[pts])
                 stiffness[b, :k] = K_pts[pts]
-        roots = self.root_X[loaded] + u_r[loaded]
-        clamps = _rotation_quaternion(th_r[loaded])
-        straight = cr.straight_rod(self.section, self.segments, roots, clamps)
+        roots, clamps, straight = self._at_rest(loaded, u_r[loaded], th_r[loaded])
         x, q = straight.x.copy(), straight.q.copy()
         for b, j in enumerate(loaded):
             warm = self._warm.get(j)
@@ -359,6 +356,14 @@ class CosseratKinematics:
             out[j] = (rod, cr.PointLoads(segment[b, :k], along[b, :k], offset[b, :k], force[b, :k], *springs), u_r[j], th_r[j], inertial[b])
         return out
 
+    def _at_rest(self, rods, u_r: np.ndarray, th_r: np.ndarray) -> tuple[np.ndarray, np.ndarray, cr.RodState]:
+        """(roots (B, 3) m, clamp frames (B, 4), the straight rods) of the rods ``rods`` where the body puts their
+        roots (translations u_r (B, 3) m, rotations th_r (B, 3) rad): a rod's start in its solve, and under
+        inertia the last step's state of a rod then at rest."""
+        roots = self.root_X[rods] + u_r
+        clamps = _rotation_quaternion(th_r)
+        return roots, clamps, cr.straight_rod(self.section, self.segments, roots, clamps)
+
     def end_step(self, step: int, f: np.ndarray) -> None:
         """Under :attr:`inertia`, after the contact loop's step ``step`` converged at point forces f (m, 3) N: its
         rods' nodes and velocities become the next step's start (a rod unloaded and slower than REST_SPEED_M_S
@@ -371,8 +376,7 @@ class CosseratKinematics:
         self._by_step[step] = answers
         motion = {}
         for j, state, u_r, th_r, *_ in answers:
-            x_n = self._motion[j][0] if j in self._motion else cr.straight_rod(
-                self.section, self.segments, self.root_X[j] + u_r, _rotation_quaternion(th_r[None])[0]).x
+            x_n = self._motion[j][0] if j in self._motion else self._at_rest([j], u_r[None], th_r[None])[2].x[0]
             v = self.inertia.velocity(state.x, x_n)
             if np.any(f[self._points[j]]) or np.abs(v).max() > self.REST_SPEED_M_S:
                 motion[j] = (state.x.copy(), v)
