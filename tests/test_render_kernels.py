@@ -202,3 +202,27 @@ def test_the_frames_projection_is_the_sheets_in_the_rasters_numbering():
     V[2, 9, 0] = 1.0  # far off the axis
     V[0, 3, 1] = np.nan
     assert project_frames(V, number, inv_length, r2_step, z_step, pixel_map, uv, depth) == (2, 1)
+
+
+def test_the_repeated_frames_are_numpys():
+    """repeats_previous is numpy's frame-to-frame ``np.all(a[1:] == a[:-1])`` of the values and the
+    vertices (NaN differs, -0.0 equals 0.0; no vertices: the values alone)."""
+    from mlsim.render.kernels import repeats_previous
+
+    rng = np.random.default_rng(9)
+    e = rng.random((9, 40)).astype(np.float32)
+    V = rng.random((9, 40, 3))
+    e[2], V[2] = e[1], V[1]  # a repeat
+    e[4], V[4, :39] = e[3], V[3, :39]  # values repeated, last vertex moved
+    e[6], V[6] = e[5], V[5]
+    e[5, 0], e[6, 0] = 0.0, -0.0  # equal under ==
+    e[8], V[8] = e[7], V[7]
+    V[7, 3, 1] = V[8, 3, 1] = np.nan  # NaN never equals
+    ref = np.zeros(9, bool)
+    ref[1:] = np.all(e[1:] == e[:-1], axis=1) & np.all(V[1:] == V[:-1], axis=(1, 2))
+    np.testing.assert_array_equal(repeats_previous(e, V), ref)
+    assert list(np.flatnonzero(ref)) == [2, 6]
+    alone = np.zeros(9, bool)
+    alone[1:] = np.all(e[1:] == e[:-1], axis=1)
+    np.testing.assert_array_equal(repeats_previous(e, np.empty((0, 0, 3))), alone)
+    assert repeats_previous(np.zeros((0, 5), np.float32), np.empty((0, 0, 3))).shape == (0,)
