@@ -226,3 +226,40 @@ def test_the_repeated_frames_are_numpys():
     alone[1:] = np.all(e[1:] == e[:-1], axis=1)
     np.testing.assert_array_equal(repeats_previous(e, np.empty((0, 0, 3))), alone)
     assert repeats_previous(np.zeros((0, 5), np.float32), np.empty((0, 0, 3))).shape == (0,)
+
+
+def test_the_transport_product_of_frames_with_few_lit_vertices_keeps_the_row_products_bits():
+    """TransportMatrix.apply takes frames with few lit vertices column by column
+    (kernels.lit_columns_product) and the others row by row (csr_times_dense): every frame's image,
+    added to a buffer or not, has the bits of the row product of all frames at once (the kernel as
+    it was for every frame); a matrix not in canonical form takes the row product for all."""
+    from mlsim.render.kernels import SPARSE_LIT_FRACTION
+    from mlsim.render.transport import TransportMatrix
+
+    rng = np.random.default_rng(12)
+    A = sp.random(30 * 20, 400, density=0.08, random_state=5, format="csr", dtype=np.float32)
+    e = rng.uniform(0.0, 3.0, (6, 400)).astype(np.float32)
+    e[1] *= rng.random(400) < 0.5 * SPARSE_LIT_FRACTION
+    e[2] *= rng.random(400) < 0.01
+    e[3] = 0.0
+    e[4] *= rng.random(400) < 0.5
+    e[5, :] = -0.0
+    e[5, 17] = 2.0
+    full = np.zeros((600, 6), np.float32)
+    csr_times_dense(A.indptr, A.indices, A.data, np.ascontiguousarray(e.T), full)
+    base = rng.random((6, 30, 20)).astype(np.float32)
+    expected = (base.reshape(6, -1) + full.T).reshape(6, 30, 20)
+    for matrix in (A, sp.csr_matrix((A.data, A.indices, A.indptr), shape=A.shape)):
+        T = TransportMatrix(matrix, 30, 20, 16, 0.0, 0.0)
+        np.testing.assert_array_equal(T.apply(e).view(np.uint32), full.T.reshape(6, 30, 20).view(np.uint32))
+        np.testing.assert_array_equal(T.apply(e, add_to=base.copy()).view(np.uint32), expected.view(np.uint32))
+        np.testing.assert_array_equal(T.apply(e[2]), full[:, 2].reshape(30, 20))
+    shuffled = A.copy()
+    for i in range(shuffled.shape[0]):  # the rows' columns out of order: not canonical
+        a, b = shuffled.indptr[i], shuffled.indptr[i + 1]
+        shuffled.indices[a:b] = shuffled.indices[a:b][::-1].copy()
+        shuffled.data[a:b] = shuffled.data[a:b][::-1].copy()
+    shuffled.has_sorted_indices = False
+    T = TransportMatrix(shuffled, 30, 20, 16, 0.0, 0.0)
+    assert T._columns() is None
+    np.testing.assert_allclose(T.apply(e), full.T.reshape(6, 30, 20), rtol=1e-5)

@@ -269,6 +269,26 @@ def rasterise_direct(uv, depth, faces, value, per_side, orientation, height_px, 
 csr_times_dense = sparse_product
 
 
+@njit(parallel=True, cache=True)
+def lit_columns_product(col_ptr, col_rows, col_data, values, out):
+    """out (F, P) += the product of A (P, N), given by its columns (CSC: col_ptr (N + 1,), col_rows,
+    col_data), with each frame's ``values`` (F, N), in place (out zero on entry), for frames with
+    few non-zero values: each non-zero value's column is scattered, the columns in increasing order.
+
+    The bits of :func:`csr_times_dense` when A's rows hold their columns in increasing order
+    (scipy's canonical CSR) and its entries are finite: each row's sum then gets the same terms in
+    the same order less the products with a zero value, which add nothing (a sum from +0.0 plus
+    +-0.0 keeps its bits). One frame per thread step."""
+    n_frames, n = values.shape
+    for u in prange(n_frames):
+        for k in range(n):
+            c = values[u, k]
+            if c == 0.0:
+                continue
+            for p in range(col_ptr[k], col_ptr[k + 1]):
+                out[u, col_rows[p]] += col_data[p] * c
+
+
 @njit(cache=True)
 def _rows_equal(a, b):
     """all(a == b) of two equal-shaped arrays, stopping at the first difference (NaN differs)."""
