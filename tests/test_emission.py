@@ -79,6 +79,52 @@ def test_the_compiled_von_mises_at_the_patches_tets_is_numpys_bit_for_bit():
 
 
 # ---------------------------------------------------------------------------------- trap kinetics
+def _detrapped_fraction_before_issue_40(t_s, sigma_eq_pa, windows_s, params, n0=None):
+    """mlsim.emission.detrapping.detrapped_fraction as it was (dbe1c99): the per-interval array,
+    np.where on every interval, then numpy's cumsum."""
+    from mlsim.emission.detrapping import merged_grid
+
+    times, sig, ranges = merged_grid(t_s, sigma_eq_pa, windows_s)
+    N = sig.shape[1]
+    n = np.ones(N) if n0 is None else np.array(n0, dtype=float)
+    k, inv_tau = params.detrapping_per_pa, 1.0 / params.recovery_time_s
+    per_interval = np.zeros((len(times) - 1, N))
+    for j in range(len(times) - 1):
+        h = times[j + 1] - times[j]
+        rate = k * np.maximum(sig[j + 1] - sig[j], 0.0) / h
+        lam = rate + inv_tau
+        decay = np.exp(-lam * h)
+        safe = np.where(lam > 0, lam, 1.0)
+        mean_factor = np.where(lam > 0, -np.expm1(-lam * h) / safe, h)
+        n_inf = np.where(lam > 0, inv_tau / safe, n)
+        per_interval[j] = rate * (n_inf * h + (n - n_inf) * mean_factor)
+        n = n_inf + (n - n_inf) * decay
+    cumulative = np.concatenate([np.zeros((1, N)), np.cumsum(per_interval, axis=0)])
+    return cumulative[ranges[:, 1]] - cumulative[ranges[:, 0]], n
+
+
+def test_the_detrapped_fraction_is_the_one_before_issue_40_bit_for_bit():
+    """detrapped_fraction (no per-interval array, no np.where where the recovery makes every rate
+    positive) against the function as it was, bit for bit: presses and releases with sub-steps,
+    constant and zero stress, a partly emptied start, without refilling (recovery inf), a single
+    step, windows past the steps."""
+    rng = np.random.default_rng(21)
+    S, N = 40, 300
+    t = np.cumsum(rng.uniform(0.002, 0.02, S))
+    sigma = np.cumsum(rng.normal(0.0, 2e4, (S, N)), axis=0)
+    sigma[:, :50] = 1e5  # constant
+    sigma[:, 50:60] = 0.0
+    edges = np.linspace(t[0] - 0.01, t[-1] + 0.02, 12)
+    windows = np.stack([edges[:-1], edges[:-1] + 0.8 * np.diff(edges)], axis=1)
+    for params in (DetrappingParams(), DetrappingParams(3e-6, 0.05), DetrappingParams(2e-7, np.inf), DetrappingParams(0.0, 1.0)):
+        for n0 in (None, rng.uniform(0.2, 1.0, N)):
+            new, n_new = detrapped_fraction(t, sigma, windows, params, n0)
+            ref, n_ref = _detrapped_fraction_before_issue_40(t, sigma, windows, params, n0)
+            assert new.tobytes() == ref.tobytes() and n_new.tobytes() == n_ref.tobytes()
+    one, _ = detrapped_fraction(t[:1], sigma[:1], windows, DetrappingParams())
+    assert one.tobytes() == _detrapped_fraction_before_issue_40(t[:1], sigma[:1], windows, DetrappingParams())[0].tobytes()
+
+
 def test_constant_stress_gives_no_light():
     t = np.linspace(0, 1, 11)
     sigma = np.full((11, 3), 4e5)

@@ -107,19 +107,35 @@ def detrapped_fraction(t_s, sigma_eq_pa, windows_s, params: DetrappingParams = D
     if n.shape != (N,) or np.any((n < 0) | (n > 1)):
         raise ValueError(f"n0: must be ({N},) values in [0, 1]")
     k, inv_tau = params.detrapping_per_pa, 1.0 / params.recovery_time_s
-    per_interval = np.zeros((len(times) - 1, N))
+    # cumulative[j]: the detrapped fraction up to merged time j, summed as numpy's cumsum sums the
+    # intervals (the first copied, then one addition each), without the (G - 1, N) array of them
+    cumulative = np.zeros((len(times), N))
     for j in range(len(times) - 1):
         h = times[j + 1] - times[j]
         rate = k * np.maximum(sig[j + 1] - sig[j], 0.0) / h  # 1/s, constant on the interval
         lam = rate + inv_tau
-        decay = np.exp(-lam * h)
-        safe = np.where(lam > 0, lam, 1.0)
-        # (1 - exp(-lam h)) / lam -> h as lam -> 0 (no rate, no refilling)
-        mean_factor = np.where(lam > 0, -np.expm1(-lam * h) / safe, h)
-        n_inf = np.where(lam > 0, inv_tau / safe, n)
-        per_interval[j] = rate * (n_inf * h + (n - n_inf) * mean_factor)
-        n = n_inf + (n - n_inf) * decay
-    cumulative = np.concatenate([np.zeros((1, N)), np.cumsum(per_interval, axis=0)])
+        x = -lam * h
+        decay = np.exp(x)
+        if inv_tau > 0:  # lam >= inv_tau > 0 everywhere: the general branch's np.where picks lam's side
+            mean_factor = np.expm1(x)
+            np.negative(mean_factor, out=mean_factor)
+            mean_factor /= lam
+            n_inf = inv_tau / lam
+        else:
+            safe = np.where(lam > 0, lam, 1.0)
+            # (1 - exp(-lam h)) / lam -> h as lam -> 0 (no rate, no refilling)
+            mean_factor = np.where(lam > 0, -np.expm1(x) / safe, h)
+            n_inf = np.where(lam > 0, inv_tau / safe, n)
+        gap = n - n_inf
+        step = n_inf * h
+        step += gap * mean_factor
+        step *= rate
+        if j == 0:
+            cumulative[1] = step
+        else:
+            np.add(cumulative[j], step, out=cumulative[j + 1])
+        gap *= decay
+        n = np.add(n_inf, gap, out=gap)
     return cumulative[ranges[:, 1]] - cumulative[ranges[:, 0]], n
 
 

@@ -147,16 +147,14 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
     rendered = np.zeros(F, bool)
     seconds = np.zeros(F)
     lit = e.max(axis=1) > 0 if e.size else np.zeros(F, bool)
-    same = np.zeros(F, bool)
-    same[1:] = lit[1:] & np.all(e[1:] == e[:-1], axis=1)
+    from mlsim.render.kernels import largest_displacement, repeats_previous
+
     if vertices_m is not None:
         vertices_m = np.asarray(vertices_m, dtype=float)
         if vertices_m.shape != (F, sensor_scene.n_vertices, 3):
             raise ValueError(f"vertices_m of shape {vertices_m.shape}: must be ({F}, {sensor_scene.n_vertices}, 3)")
-        same[1:] &= np.all(vertices_m[1:] == vertices_m[:-1], axis=(1, 2))
-        from mlsim.render.kernels import largest_displacement
-
         moved_m = largest_displacement(vertices_m, np.asarray(sensor_scene.rest_vertices_m, dtype=float))
+    same = lit & repeats_previous(np.ascontiguousarray(e), np.empty((0, 0, 3)) if vertices_m is None else np.ascontiguousarray(vertices_m))
     todo = np.flatnonzero(lit & ~same)
     every = len(todo) == F
     pick = slice(None) if every else todo  # every frame: the frames' arrays go in as views, not copied by index

@@ -53,11 +53,10 @@ import numpy as np
 from mlsim.errors import require_finite
 from mlsim.render.transport import RADIANCE_FIX
 
-__all__ = ["DirectRaster", "direct_raster", "tangent_table", "sample_throughput", "N_BANDS"]
+__all__ = ["DirectRaster", "direct_raster", "tangent_table", "sample_throughput"]
 
-#: pixel-row bands of a frame, rasterised one after the other (the frames run in parallel): a
-#: band's sample buffers stay in the core's cache
-N_BANDS = 8
+_VERTICES_WHAT = "vertices_m (..., 3) of the sheet to rasterise"
+_VERTICES_FIX = "the deformed sheet comes from the solve's displacement: check the solve stage (solve_forces.csv) or the vertices passed in"
 
 
 def tangent_table(lens_mm: float, acrylic_mm: float, acrylic_ior: float, core_ior: float, rho_max_mm: float, z_max_mm: float,
@@ -154,32 +153,55 @@ class DirectRaster:
 
         V = np.asarray(vertices_m, dtype=np.float64)
         flat = np.ascontiguousarray(V.reshape(-1, 3) * 1e3)
-        require_finite(V, "vertices_m (..., 3) of the sheet to rasterise", "the deformed sheet comes from the solve's displacement: check the "
-                       "solve stage (solve_forces.csv) or the vertices passed in")
+        require_finite(V, _VERTICES_WHAT, _VERTICES_FIX)
         uv = np.empty((len(flat), 2))
         outside = project_through_interfaces(flat, self.inv_length, self.r2_step_mm2, self.z_step_mm, self.pixel_map, uv)
         if outside:
-            z, rho = flat[:, 2], np.hypot(flat[:, 0], flat[:, 1])
-            raise ValueError(f"{outside} sheet points lie at z = {z.min():.3f} .. {z.max():.3f} mm and up to {rho.max():.2f} mm off the lens "
-                             f"axis; the rasteriser's projection covers z = 0 .. {self.z_max_mm:.2f} mm (above the core's bottom face) "
-                             f"and {self.rho_max_mm:.2f} mm: a vertex below the core's bottom or this far out is no deformation of "
-                             'this sensor (check the solve), or render with fidelity.render.tier = "path"')
+            self._raise_outside(outside, flat)
         return uv.reshape(V.shape[:-1] + (2,))
+
+    def _raise_outside(self, outside: int, vertices_mm) -> None:
+        z, rho = vertices_mm[..., 2], np.hypot(vertices_mm[..., 0], vertices_mm[..., 1])
+        raise ValueError(f"{outside} sheet points lie at z = {z.min():.3f} .. {z.max():.3f} mm and up to {rho.max():.2f} mm off the lens "
+                         f"axis; the rasteriser's projection covers z = 0 .. {self.z_max_mm:.2f} mm (above the core's bottom face) "
+                         f"and {self.rho_max_mm:.2f} mm: a vertex below the core's bottom or this far out is no deformation of "
+                         'this sensor (check the solve), or render with fidelity.render.tier = "path"')
+
+    def raster_order(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(order (N,), number (N,), faces (K, 3)): the sheet's vertices numbered in the order in
+        which ``faces`` first use them (the sheet's vertex ``order[j]`` is vertex j of the returned
+        faces, its vertex i is vertex ``number[i]``; unused vertices last), so the rasteriser's
+        reads of neighbouring faces fall near each other in memory (0.4 ms a frame of the screw
+        scene's 3.9). Made from ``faces`` again when they change."""
+        if getattr(self, "_order_of", None) is not self.faces:
+            first = np.full(self.n_vertices, self.faces.size, dtype=np.int64)
+            np.minimum.at(first, self.faces.ravel(), np.arange(self.faces.size))
+            order = np.argsort(first, kind="stable")
+            number = np.empty_like(order)
+            number[order] = np.arange(len(order))
+            self._order = (order, number, np.ascontiguousarray(number[self.faces]))
+            self._order_of = self.faces
+        return self._order
 
     def images(self, vertices_m, radiance) -> np.ndarray:
         """Direct-light images (F, H, W) float32 of per-vertex radiance (F, N) on the sheet at
         vertices_m (F, N, 3) m (the same units as :meth:`mlsim.render.sensor_scene.SensorScene.render`)."""
-        from mlsim.render.kernels import rasterise_direct
+        from mlsim.render.kernels import project_frames, rasterise_direct
 
         V = np.asarray(vertices_m, dtype=np.float64)
         e = np.ascontiguousarray(radiance, dtype=np.float32)
         if V.ndim != 3 or V.shape[1:] != (self.n_vertices, 3) or e.shape != V.shape[:2]:
             raise ValueError(f"vertices_m {V.shape} and radiance {e.shape}: must be (F, {self.n_vertices}, 3) and (F, {self.n_vertices})")
         require_finite(e, "radiance (frames, vertices) to rasterise", RADIANCE_FIX)
-        uv = self.pixels_of(V)
-        depth = np.ascontiguousarray(V[..., 2], dtype=np.float32)  # along a ray inside the core, z grows
-        return rasterise_direct(uv, depth, self.faces, e, self.per_side, self.orientation, self.height_px, self.width_px,
-                                self.throughput, N_BANDS)
+        order, number, faces = self.raster_order()
+        uv = np.empty((len(V), len(order), 2))
+        depth = np.empty((len(V), len(order)), np.float32)  # along a ray inside the core, z grows
+        outside, non_finite = project_frames(V, number, self.inv_length, self.r2_step_mm2, self.z_step_mm, self.pixel_map, uv, depth)
+        if non_finite:
+            require_finite(V, _VERTICES_WHAT, _VERTICES_FIX)
+        if outside:
+            self._raise_outside(outside, V * 1e3)
+        return rasterise_direct(uv, depth, faces, e[:, order], self.per_side, self.orientation, self.height_px, self.width_px, self.throughput)
 
 
 def direct_raster(sensor_scene, per_side: int = 1) -> DirectRaster:

@@ -48,17 +48,122 @@ def project_through_interfaces(vertices_mm, inv_length, r2_step, z_step, pixel_m
     return outside
 
 
+#: the tiles of the lit samples' map (:func:`_dark_faces_that_matter`) are 2^TILE_SHIFT samples a side
+TILE_SHIFT = 3
+
+#: below this fraction of lit vertices a frame's dark faces are first tested against the map of
+#: what the lit faces cover (on the screw scene's episodes a third of the frames have 0.2 % of the
+#: vertices lit, the rest about half: there the test would cost more than it saves)
+SPARSE_LIT_FRACTION = 0.1
+
+
+@njit(parallel=True, cache=True)
+def project_frames(vertices_m, number, inv_length, r2_step, z_step, pixel_map, uv, depth):
+    """The sheet's frames placed in the image for the rasteriser, in its vertex numbering: uv
+    (F, N, 2) (as :func:`project_through_interfaces`, of ``vertices_m`` (F, N, 3) m in mm) and
+    depth (F, N) float32 (the height z in m) of the sheet's vertex i at ``number[i]`` (N,), in
+    place (the sheet read in its order, the writes scattered: faster than the other way round).
+    Returns (how many points lie outside the table's grid, how many have a NaN or infinite
+    coordinate); a non-finite point is skipped."""
+    n_frames, n = vertices_m.shape[0], number.shape[0]
+    n_r, n_z = inv_length.shape
+    outside = 0
+    non_finite = 0
+    for f in prange(n_frames):
+        for i in range(n):
+            j = number[i]
+            x, y, z = vertices_m[f, i, 0] * 1e3, vertices_m[f, i, 1] * 1e3, vertices_m[f, i, 2] * 1e3
+            if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
+                non_finite += 1
+                continue
+            fr = (x * x + y * y) / r2_step
+            fz = z / z_step
+            if fz < -1e-6 or fz > n_z - 1 or fr > n_r - 1:
+                outside += 1
+            ir = min(max(int(fr), 0), n_r - 2)
+            iz = min(max(int(fz), 0), n_z - 2)
+            wr = min(max(fr - ir, 0.0), 1.0)
+            wz = min(max(fz - iz, 0.0), 1.0)
+            q = ((1.0 - wr) * ((1.0 - wz) * inv_length[ir, iz] + wz * inv_length[ir, iz + 1])
+                 + wr * ((1.0 - wz) * inv_length[ir + 1, iz] + wz * inv_length[ir + 1, iz + 1]))
+            tx, ty = q * x, q * y
+            uv[f, j, 0] = pixel_map[0, 0] + pixel_map[0, 1] * tx + pixel_map[0, 2] * ty
+            uv[f, j, 1] = pixel_map[1, 0] + pixel_map[1, 1] * tx + pixel_map[1, 2] * ty
+            depth[f, j] = np.float32(vertices_m[f, i, 2])
+    return outside, non_finite
+
+
 @njit(cache=True)
-def _rasterise_band(uv, depth, faces, value, per_side, orientation, width_samples, r0, r1, nearest, seen, rows_lo, rows_hi):
-    """Every triangle that faces the camera, into sample rows r0 .. r1 - 1: where a triangle covers a
-    sample and is nearer (smaller ``depth``, interpolated) than what the sample holds, the sample
-    takes the triangle's ``value`` interpolated there. ``nearest``, ``seen``: ((r1 - r0) x
-    width_samples,) float32, the band's depth and value buffers; rows_lo, rows_hi (K,): each
-    triangle's span of sample rows (only those that reach the band are read). Barycentric weights
-    are those of the image-space triangle (the projection is smooth on a triangle's scale)."""
+def _dark_faces_that_matter(uv, faces, value, per_side, width_samples, n_rows, needed):
+    """needed (K,) bool, in place: the faces that can change a sample's value, the lit faces (a
+    vertex value other than zero) and the dark faces that may cover a sample which a lit face may
+    cover, on tiles of 2^TILE_SHIFT samples a side. A sample no lit face covers ends at zero whichever
+    dark faces cover it, and the faces that cover a lit sample are all kept (in their order), so
+    rasterising only these gives the same bits. Returns the number of lit faces."""
     k = per_side
+    tiles_w = ((width_samples - 1) >> TILE_SHIFT) + 1
+    tiles_h = ((n_rows - 1) >> TILE_SHIFT) + 1
+    # each vertex's tile (clamped into the image): a face's samples lie in the tiles between its vertices'
+    tile_x = np.empty(uv.shape[0], np.int32)
+    tile_y = np.empty(uv.shape[0], np.int32)
+    for i in range(uv.shape[0]):
+        tile_x[i] = min(max(int(np.floor(uv[i, 0] * k - 0.5)), 0), width_samples - 1) >> TILE_SHIFT
+        tile_y[i] = min(max(int(np.floor(uv[i, 1] * k - 0.5)), 0), n_rows - 1) >> TILE_SHIFT
+    tiles = np.zeros(tiles_h * tiles_w, np.bool_)
+    n_lit = 0
     for f in range(faces.shape[0]):
-        if rows_hi[f] < r0 or rows_lo[f] > r1 - 1:
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        lit = value[i0] != 0.0 or value[i1] != 0.0 or value[i2] != 0.0
+        needed[f] = lit
+        if lit:
+            n_lit += 1
+            for ty in range(min(tile_y[i0], min(tile_y[i1], tile_y[i2])), max(tile_y[i0], max(tile_y[i1], tile_y[i2])) + 1):
+                for tx in range(min(tile_x[i0], min(tile_x[i1], tile_x[i2])), max(tile_x[i0], max(tile_x[i1], tile_x[i2])) + 1):
+                    tiles[ty * tiles_w + tx] = True
+    for f in range(faces.shape[0]):
+        if needed[f]:
+            continue
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        tx0, tx1 = min(tile_x[i0], min(tile_x[i1], tile_x[i2])), max(tile_x[i0], max(tile_x[i1], tile_x[i2]))
+        ty0, ty1 = min(tile_y[i0], min(tile_y[i1], tile_y[i2])), max(tile_y[i0], max(tile_y[i1], tile_y[i2]))
+        if tx0 == tx1 and ty0 == ty1:  # most faces: within one tile
+            needed[f] = tiles[ty0 * tiles_w + tx0]
+            continue
+        hit = False
+        for ty in range(ty0, ty1 + 1):
+            for tx in range(tx0, tx1 + 1):
+                hit = hit or tiles[ty * tiles_w + tx]
+        needed[f] = hit
+    return n_lit
+
+
+@njit(cache=True)
+def _rasterise_frame(uv, depth, faces, value, per_side, orientation, height_px, width_px, throughput, image):
+    """One frame's direct light into ``image`` (height_px, width_px), in the faces' order: where a
+    camera-facing triangle covers a sample and is nearer (smaller ``depth``, interpolated) than
+    what the sample holds, the sample takes the triangle's ``value`` interpolated there.
+    Barycentric weights are those of the image-space triangle (the projection is smooth on a
+    triangle's scale).
+
+    A frame with few lit vertices (below SPARSE_LIT_FRACTION) rasterises only the faces that can
+    change a sample (:func:`_dark_faces_that_matter`): the same bits, a sixth of the time on
+    such frames of the screw scene."""
+    k = per_side
+    width_samples = width_px * k
+    n_rows = height_px * k
+    n_lit_vertices = 0
+    for i in range(value.shape[0]):
+        n_lit_vertices += value[i] != 0.0
+    if n_lit_vertices == 0:
+        return  # every sample ends at zero
+    sparse = n_lit_vertices < SPARSE_LIT_FRACTION * value.shape[0]
+    needed = np.empty(faces.shape[0] if sparse else 0, np.bool_)
+    if sparse:
+        _dark_faces_that_matter(uv, faces, value, k, width_samples, n_rows, needed)
+    nearest = np.full(n_rows * width_samples, np.inf, dtype=np.float32)
+    seen = np.zeros(n_rows * width_samples, dtype=np.float32)
+    for f in range(faces.shape[0]):
+        if sparse and not needed[f]:
             continue
         i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
         # sample-grid coordinates: sample (sx, sy) sits at pixel ((sx + 0.5) / k, (sy + 0.5) / k)
@@ -67,8 +172,8 @@ def _rasterise_band(uv, depth, faces, value, per_side, orientation, width_sample
         y2 = uv[i2, 1] * k - 0.5
         y_lo = min(y0, min(y1, y2))
         y_hi = max(y0, max(y1, y2))
-        sy_lo, sy_hi = max(r0, int(np.ceil(y_lo))), min(r1 - 1, int(np.floor(y_hi)))
-        if sy_lo > sy_hi:  # outside the band, or between two sample rows (most of the far side's slivers)
+        sy_lo, sy_hi = max(0, int(np.ceil(y_lo))), min(n_rows - 1, int(np.floor(y_hi)))
+        if sy_lo > sy_hi:  # outside the image, or between two sample rows (most of the far side's slivers)
             continue
         x0 = uv[i0, 0] * k - 0.5
         x1 = uv[i1, 0] * k - 0.5
@@ -117,8 +222,10 @@ def _rasterise_band(uv, depth, faces, value, per_side, orientation, width_sample
             w1 = A1 + B1 * xa + C1 * sy
             d = w0 * d0 + w1 * d1 + (1.0 - w0 - w1) * d2
             v = w0 * v0 + w1 * v1 + (1.0 - w0 - w1) * v2
-            base = (sy - r0) * width_samples
+            base = sy * width_samples
             for s in range(base + xa, base + xb + 1):
+                # the depth is compared in float64 with what the sample holds in float32 (its
+                # rounding decides near-ties: so the faces' order is kept)
                 if d < nearest[s]:
                     nearest[s] = d
                     # inside a triangle the interpolated value lies between its vertices'; what
@@ -127,56 +234,32 @@ def _rasterise_band(uv, depth, faces, value, per_side, orientation, width_sample
                     seen[s] = min(max(v, v_min), v_max)
                 d += d_step
                 v += v_step
-
-
-@njit(cache=True)
-def _rasterise_frame(uv, depth, faces, value, per_side, orientation, height_px, width_px, throughput, n_bands, image):
-    """One frame's direct light into ``image`` (height_px, width_px), band after band (small bands:
-    their buffers stay in the core's cache)."""
-    k = per_side
-    width_samples = width_px * k
-    # each triangle's rows, once: a band then skips the triangles outside it without reading them
-    rows_lo = np.empty(faces.shape[0], np.float32)
-    rows_hi = np.empty(faces.shape[0], np.float32)
-    for f in range(faces.shape[0]):
-        a, b, c = uv[faces[f, 0], 1], uv[faces[f, 1], 1], uv[faces[f, 2], 1]
-        rows_lo[f] = min(a, min(b, c)) * k - 0.5
-        rows_hi[f] = max(a, max(b, c)) * k - 0.5
-    rows = ((height_px + n_bands - 1) // n_bands) * k
-    nearest = np.empty(rows * width_samples, dtype=np.float32)
-    seen = np.empty(rows * width_samples, dtype=np.float32)
-    for b in range(n_bands):
-        r0 = b * rows
-        r1 = min(height_px * k, r0 + rows)
-        if r0 >= r1:
-            continue
-        nearest[:] = np.inf
-        seen[:] = 0.0
-        _rasterise_band(uv, depth, faces, value, k, orientation, width_samples, r0, r1, nearest, seen, rows_lo, rows_hi)
-        for py in range(r0 // k, r1 // k):
-            for j in range(k):
-                sy = py * k + j
-                base = (sy - r0) * width_samples
-                for px in range(width_px):
-                    acc = 0.0
-                    for i in range(k):
-                        acc += throughput[sy, px * k + i] * seen[base + px * k + i]
-                    image[py, px] += acc / (k * k)
+    for py in range(height_px):
+        for j in range(k):
+            sy = py * k + j
+            base = sy * width_samples
+            for px in range(width_px):
+                acc = 0.0
+                for i in range(k):
+                    acc += throughput[sy, px * k + i] * seen[base + px * k + i]
+                image[py, px] += acc / (k * k)
 
 
 @njit(parallel=True, cache=True)
-def rasterise_direct(uv, depth, faces, value, per_side, orientation, height_px, width_px, throughput, n_bands):
+def rasterise_direct(uv, depth, faces, value, per_side, orientation, height_px, width_px, throughput):
     """(F, height_px, width_px) float32: per frame and pixel, the mean over its per_side x per_side
     samples of throughput (H k, W k) times the ``value`` (F, N) of the nearest camera-facing
     triangle of ``faces`` (K, 3) at the sample (zero where none covers it).
 
     uv (F, N, 2): the vertices' pixel positions; depth (F, N): nearer is smaller along a sample's
     ray; orientation: +1 or -1, the sign of a camera-facing triangle's area in pixel coordinates.
-    The frames run in parallel, each cut into ``n_bands`` bands of whole pixel rows."""
+    The frames run in parallel (one frame per thread step: the same bits on any thread count).
+    Faces in image order and vertices numbered in the faces' order keep the reads near each other
+    (:class:`mlsim.render.direct_raster.DirectRaster` does both)."""
     n_frames = uv.shape[0]
     images = np.zeros((n_frames, height_px, width_px), np.float32)
     for f in prange(n_frames):
-        _rasterise_frame(uv[f], depth[f], faces, value[f], per_side, orientation, height_px, width_px, throughput, n_bands, images[f])
+        _rasterise_frame(uv[f], depth[f], faces, value[f], per_side, orientation, height_px, width_px, throughput, images[f])
     return images
 
 
@@ -184,6 +267,53 @@ def rasterise_direct(uv, depth, faces, value, per_side, orientation, height_px, 
 # of the sums fixed): the transport matrices' batched product, the same kernel as the reduced tier's
 # precompute (compiled here for float32)
 csr_times_dense = sparse_product
+
+
+@njit(parallel=True, cache=True)
+def lit_columns_product(col_ptr, col_rows, col_data, values, out):
+    """out (F, P) += the product of A (P, N), given by its columns (CSC: col_ptr (N + 1,), col_rows,
+    col_data), with each frame's ``values`` (F, N), in place (out zero on entry), for frames with
+    few non-zero values: each non-zero value's column is scattered, the columns in increasing order.
+
+    The bits of :func:`csr_times_dense` when A's rows hold their columns in increasing order
+    (scipy's canonical CSR) and its entries are finite: each row's sum then gets the same terms in
+    the same order less the products with a zero value, which add nothing (a sum from +0.0 plus
+    +-0.0 keeps its bits). One frame per thread step."""
+    n_frames, n = values.shape
+    for u in prange(n_frames):
+        for k in range(n):
+            c = values[u, k]
+            if c == 0.0:
+                continue
+            for p in range(col_ptr[k], col_ptr[k + 1]):
+                out[u, col_rows[p]] += col_data[p] * c
+
+
+@njit(cache=True)
+def _rows_equal(a, b):
+    """all(a == b) of two equal-shaped arrays, stopping at the first difference (NaN differs)."""
+    fa, fb = a.ravel(), b.ravel()
+    for i in range(fa.shape[0]):
+        if not fa[i] == fb[i]:
+            return False
+    return True
+
+
+@njit(cache=True)
+def repeats_previous(values, vertices):
+    """(F,) bool: frame f > 0 has the same ``values`` (F, N) and, when ``vertices`` (F, N, 3) has
+    frames, the same vertices as frame f - 1 (``==``, as numpy's: NaN differs, -0.0 equals 0.0).
+    Each comparison stops at the first difference: numpy's ``np.all(a[1:] == a[:-1], axis=...)``
+    compared every vertex of every frame (0.1-0.2 ms a frame of the screw scene), where frames
+    that differ do so at their first vertices."""
+    n_frames = values.shape[0]
+    out = np.zeros(n_frames, np.bool_)
+    for f in range(1, n_frames):
+        same = _rows_equal(values[f], values[f - 1])
+        if same and vertices.shape[0] > 0:
+            same = _rows_equal(vertices[f], vertices[f - 1])
+        out[f] = same
+    return out
 
 
 @njit(parallel=True, cache=True)
