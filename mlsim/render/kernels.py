@@ -28,24 +28,29 @@ def project_through_interfaces(vertices_mm, inv_length, r2_step, z_step, pixel_m
     on a regular grid in rho^2 (step ``r2_step``) and z (step ``z_step``), interpolated bilinearly
     (points past the grid take its edge). ``pixel_map`` (2, 3): pixel = M @ (1, tan_x, tan_y).
     Returns how many points lie outside the grid (below z = 0 or past its ends)."""
-    n_r, n_z = inv_length.shape
     outside = 0
     for i in prange(vertices_mm.shape[0]):
-        x, y, z = vertices_mm[i, 0], vertices_mm[i, 1], vertices_mm[i, 2]
-        fr = (x * x + y * y) / r2_step
-        fz = z / z_step
-        if fz < -1e-6 or fz > n_z - 1 or fr > n_r - 1:
-            outside += 1
-        ir = min(max(int(fr), 0), n_r - 2)
-        iz = min(max(int(fz), 0), n_z - 2)
-        wr = min(max(fr - ir, 0.0), 1.0)
-        wz = min(max(fz - iz, 0.0), 1.0)
-        q = ((1.0 - wr) * ((1.0 - wz) * inv_length[ir, iz] + wz * inv_length[ir, iz + 1])
-             + wr * ((1.0 - wz) * inv_length[ir + 1, iz] + wz * inv_length[ir + 1, iz + 1]))
-        tx, ty = q * x, q * y
-        uv[i, 0] = pixel_map[0, 0] + pixel_map[0, 1] * tx + pixel_map[0, 2] * ty
-        uv[i, 1] = pixel_map[1, 0] + pixel_map[1, 1] * tx + pixel_map[1, 2] * ty
+        uv[i, 0], uv[i, 1], off = _through_interfaces(vertices_mm[i, 0], vertices_mm[i, 1], vertices_mm[i, 2], inv_length, r2_step, z_step, pixel_map)
+        outside += off
     return outside
+
+
+@njit(cache=True)
+def _through_interfaces(x, y, z, inv_length, r2_step, z_step, pixel_map):
+    """(u, v, 1 if the point (mm) lies outside the table's grid else 0): one point of
+    :func:`project_through_interfaces`."""
+    n_r, n_z = inv_length.shape
+    fr = (x * x + y * y) / r2_step
+    fz = z / z_step
+    off = 1 if (fz < -1e-6 or fz > n_z - 1 or fr > n_r - 1) else 0
+    ir = min(max(int(fr), 0), n_r - 2)
+    iz = min(max(int(fz), 0), n_z - 2)
+    wr = min(max(fr - ir, 0.0), 1.0)
+    wz = min(max(fz - iz, 0.0), 1.0)
+    q = ((1.0 - wr) * ((1.0 - wz) * inv_length[ir, iz] + wz * inv_length[ir, iz + 1])
+         + wr * ((1.0 - wz) * inv_length[ir + 1, iz] + wz * inv_length[ir + 1, iz + 1]))
+    tx, ty = q * x, q * y
+    return pixel_map[0, 0] + pixel_map[0, 1] * tx + pixel_map[0, 2] * ty, pixel_map[1, 0] + pixel_map[1, 1] * tx + pixel_map[1, 2] * ty, off
 
 
 #: the tiles of the lit samples' map (:func:`_dark_faces_that_matter`) are 2^TILE_SHIFT samples a side
@@ -66,7 +71,6 @@ def project_frames(vertices_m, number, inv_length, r2_step, z_step, pixel_map, u
     Returns (how many points lie outside the table's grid, how many have a NaN or infinite
     coordinate); a non-finite point is skipped."""
     n_frames, n = vertices_m.shape[0], number.shape[0]
-    n_r, n_z = inv_length.shape
     outside = 0
     non_finite = 0
     for f in prange(n_frames):
@@ -76,19 +80,8 @@ def project_frames(vertices_m, number, inv_length, r2_step, z_step, pixel_map, u
             if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
                 non_finite += 1
                 continue
-            fr = (x * x + y * y) / r2_step
-            fz = z / z_step
-            if fz < -1e-6 or fz > n_z - 1 or fr > n_r - 1:
-                outside += 1
-            ir = min(max(int(fr), 0), n_r - 2)
-            iz = min(max(int(fz), 0), n_z - 2)
-            wr = min(max(fr - ir, 0.0), 1.0)
-            wz = min(max(fz - iz, 0.0), 1.0)
-            q = ((1.0 - wr) * ((1.0 - wz) * inv_length[ir, iz] + wz * inv_length[ir, iz + 1])
-                 + wr * ((1.0 - wz) * inv_length[ir + 1, iz] + wz * inv_length[ir + 1, iz + 1]))
-            tx, ty = q * x, q * y
-            uv[f, j, 0] = pixel_map[0, 0] + pixel_map[0, 1] * tx + pixel_map[0, 2] * ty
-            uv[f, j, 1] = pixel_map[1, 0] + pixel_map[1, 1] * tx + pixel_map[1, 2] * ty
+            uv[f, j, 0], uv[f, j, 1], off = _through_interfaces(x, y, z, inv_length, r2_step, z_step, pixel_map)
+            outside += off
             depth[f, j] = np.float32(vertices_m[f, i, 2])
     return outside, non_finite
 
