@@ -92,7 +92,7 @@ def _dark_faces_that_matter(uv, faces, value, per_side, width_samples, n_rows, n
     vertex value other than zero) and the dark faces that may cover a sample which a lit face may
     cover, on tiles of 2^TILE_SHIFT samples a side. A sample no lit face covers ends at zero whichever
     dark faces cover it, and the faces that cover a lit sample are all kept (in their order), so
-    rasterising only these gives the same bits. Returns the number of lit faces."""
+    rasterising only these gives the same bits."""
     k = per_side
     tiles_w = ((width_samples - 1) >> TILE_SHIFT) + 1
     tiles_h = ((n_rows - 1) >> TILE_SHIFT) + 1
@@ -103,13 +103,11 @@ def _dark_faces_that_matter(uv, faces, value, per_side, width_samples, n_rows, n
         tile_x[i] = min(max(int(np.floor(uv[i, 0] * k - 0.5)), 0), width_samples - 1) >> TILE_SHIFT
         tile_y[i] = min(max(int(np.floor(uv[i, 1] * k - 0.5)), 0), n_rows - 1) >> TILE_SHIFT
     tiles = np.zeros(tiles_h * tiles_w, np.bool_)
-    n_lit = 0
     for f in range(faces.shape[0]):
         i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
         lit = value[i0] != 0.0 or value[i1] != 0.0 or value[i2] != 0.0
         needed[f] = lit
         if lit:
-            n_lit += 1
             for ty in range(min(tile_y[i0], min(tile_y[i1], tile_y[i2])), max(tile_y[i0], max(tile_y[i1], tile_y[i2])) + 1):
                 for tx in range(min(tile_x[i0], min(tile_x[i1], tile_x[i2])), max(tile_x[i0], max(tile_x[i1], tile_x[i2])) + 1):
                     tiles[ty * tiles_w + tx] = True
@@ -127,7 +125,6 @@ def _dark_faces_that_matter(uv, faces, value, per_side, width_samples, n_rows, n
             for tx in range(tx0, tx1 + 1):
                 hit = hit or tiles[ty * tiles_w + tx]
         needed[f] = hit
-    return n_lit
 
 
 @njit(cache=True)
