@@ -138,6 +138,18 @@ class _Delassus:
     def elastic(self, f: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def elastic_block(self, points: np.ndarray) -> np.ndarray:
+        """E among ``points`` (k,): the (3 k, 3 k) m/N compliance (point-major), the columns of E f for unit
+        forces on them (3 k products with E)."""
+        points = np.asarray(points, dtype=np.int64)
+        out = np.empty((3 * len(points), 3 * len(points)))
+        f = np.zeros((self.m, 3))
+        for c in range(3 * len(points)):
+            f[points[c // 3], c % 3] = 1.0
+            out[:, c] = self.elastic(f)[points].ravel()
+            f[points[c // 3], c % 3] = 0.0
+        return out
+
     def apply(self, f: np.ndarray) -> np.ndarray:
         """G f (m, 3) m."""
         return self.elastic(f) + f * self.inv_k[:, None]
@@ -215,6 +227,10 @@ class DenseDelassus(_Delassus):
 
     def elastic(self, f):
         return (self.C @ f.ravel()).reshape(-1, 3)
+
+    def elastic_block(self, points):
+        cols = (3 * np.asarray(points, dtype=np.int64)[:, None] + np.arange(3)).ravel()
+        return self.C[np.ix_(cols, cols)]
 
     def _factorise(self, rho):
         return 1.0 / (self.eigenvalues + rho)
@@ -455,6 +471,7 @@ class AdmmInfo:
     converged: bool = True
     gap_error_m: float = 0.0  # the last linearisation's largest gap error at a loaded point
     linearised: bool = True  # False: max_linearisations were not enough for the gap's curvature
+    round_residual_n: float = 0.0  # rod kinematics: the rounds' fixed-point residual at the last one (N, summed per rod)
     history: list = field(default_factory=list)
 
 
@@ -752,6 +769,7 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
         info.converged = info.linearised = False
     extra = None
     if kin is not None:
+        info.round_residual_n = max(moved_h, reached)
         warm.remember(u, hidden_true, load)
         extra = load
     warm.f, warm.z, warm.rung = f, z, rung

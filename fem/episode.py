@@ -234,6 +234,8 @@ class Episode:
             # linear tiers: how far the rods bend, and the per-rod contact force error that implies (fem.quasistatic)
             "rod_bending_ratio": self.seconds.get("rod_bending_ratio"),
             "geometric_error_estimate": self.seconds.get("geometric_error_estimate"),
+            # Cosserat rods: the bent rods let go, [step, mesh rod], where that estimate does not hold (fem.rod_exact)
+            "geometric_error_releases": self.seconds.get("geometric_error_releases"),
             "per_rod_peak": self.rod_peaks(),
         }
 

@@ -591,6 +591,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         timings["precompute_delassus"] = time.perf_counter() - t_d
         timings["precompute"] += timings["precompute_delassus"]
         contact_kw = {"delassus": delassus, "warm": contact_admm.WarmStart(kinematics=kinematics), "max_iterations": settings.contact_max_iterations}
+        if exact and kinematics is not None:
+            kinematics.local_compliance = delassus.elastic_block  # the tier's error estimate (fem.rod_exact)
     # force control finds the height by a secant on the total force to 1e-6 (condensed.solve_points_at_force):
     # the contact solves under it must be ten times tighter than that
     force_kw = contact_kw if settings.contact_solver != "admm" else {**contact_kw, "admm_rtol": 1e-7}
@@ -628,6 +630,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     target = np.full(S, np.nan)
     iters = np.zeros(S, dtype=np.int64)
     stick = np.zeros(S)
+    round_residual = np.zeros(S)  # the rod kinematics' rounds' residual at each step's end (N; contact_admm.AdmmInfo)
     state = trajectory.initial_state(load, tip_z)
     pstate = condensed.PointState(u0.copy(), np.zeros((len(X), 3)))
     u_now = u0.copy()
@@ -707,6 +710,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                     worst.update(residual_n=a.residual_n, ratio=ratio, step=s)
                 if not a.linearised:
                     worst["unlinearised"].append(s)
+                round_residual[s] = a.round_residual_n
             _check_small_strain(u - u0, rod, rod_height, settings.small_strain_limit, case, settings.tier)
             if euler_n is not None:
                 _check_buckling(info["f"], rod, n_rods, euler_n, settings.buckling_limit, case, settings.tier, rod_model)
@@ -802,7 +806,22 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     on_rod = rod >= 0
     rod_force = np.zeros((S, n_rods, 3))
     np.add.at(rod_force, (slice(None), rod[on_rod]), forces[:, on_rod])
-    if second_order:
+    if exact and kinematics is not None:
+        # the Cosserat rods' own: their ends' linear response turned with their tips, the section's mismatch, the rounds'
+        # residual; and the releases of bent rods, where it does not hold (fem.rod_exact)
+        weights = np.bincount(frame_of[grid.frame_step], minlength=U)
+        estimate = kinematics.force_error_estimate(forces[first], weights, first, round_residual[first])
+        timings["geometric_error_estimate"] = estimate.force
+        timings["geometric_error_releases"] = [list(r) for r in estimate.releases]
+        if log is not None and np.isfinite(estimate.force):
+            where = sorted({s for s, _ in estimate.releases})
+            log(f"the {settings.tier} tier's Cosserat rods: per-rod contact forces estimated {estimate.force:.1%} off the nonlinear tier's "
+                "(fem.rod_exact.CosseratKinematics.force_error_estimate)"
+                + (f"; it does not hold here: bent rods are let go in steps {where} (rods {sorted({r for _, r in estimate.releases})}) and "
+                   "snap back at a step that depends on which frictional equilibrium held them (the default demo's lift-off 10-18 %, "
+                   'a swipe over 12 mm rods 14-22 % off in those frames); compare with fidelity.solve.tier = "nonlinear" there'
+                   if where else ""))
+    elif second_order:
         # the estimate is of first-order kinematics; second order measured 7-11 % on the tiny slide (fem.rod_kinematics)
         timings["geometric_error_estimate"] = float("nan")
     else:

@@ -51,7 +51,10 @@ def rows(records: list[dict], varies, load_names: list[str]) -> list[dict]:
             row[f"{name}_sf_stress"] = r.get("safety_factor_stress")
             row[f"{name}_sf_strain"] = r.get("safety_factor_strain")
             row[f"{name}_tears"] = r.get("tears")
-            row[f"{name}_force_err_est"] = r.get("solve_error_estimate")  # the linear tiers' own estimate (fem.quasistatic)
+            row[f"{name}_force_err_est"] = r.get("solve_error_estimate")  # the fast tiers' own estimate (fem.quasistatic)
+            # Cosserat rods: bent rods let go (fem.rod_exact.CosseratKinematics.force_error_estimate), where the estimate does not hold
+            releases = r.get("solve_error_releases")
+            row[f"{name}_releases"] = None if releases is None else len(releases)
             # which tier answered each load; "nonlinear<linear": the linear tier refused it as beyond its model
             # (mlsim.errors.OutOfRangeError) and the nonlinear tier answered (with backward-Euler dynamics: "+be")
             esc = r.get("escalated") or {}
@@ -118,7 +121,7 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
     # a fixed order (the varied fields, each load's figures in load order, the rest), of the columns
     # some variant has a value in
     per_load = ("photons", "peak_rod_dn", "photons_per_n", "force_n", "stress_kpa", "strain_pct", "sf_stress", "sf_strain", "tears",
-                "force_err_est")
+                "force_err_est", "releases")
     order = ["variant", "label", *(v.name for v in varies), *(f"{n}_{m}" for n in load_names for m in per_load), "tear_risk", "tears",
              "hough_ok", "min_valley", "rim_gap_px", "hough_offset_px", "direction_mae_deg", "beam_strain_per_n", "tiers", "seconds", "failed"]
     present = {k for row in table for k, v in row.items() if v not in (None, "")}
@@ -145,9 +148,11 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
            "tensile strength / peak stress); tear_risk: 1 / the smallest safety factor over the loads; tears: a safety factor below 1 "
            "under any load (the press is the design load). min_valley: the "
            "calibration frame's darkest gap between neighbouring disks (0 merged, 1 black). beam_strain_per_n: SPEC 1.3's "
-           "cantilever sensitivity 4 L / (pi r^3 E). tiers: solve/render per load (nonlinear+be<linear: the linear tier refused the load as beyond its model, the nonlinear tier answered it with backward-Euler dynamics); force_err_est: the linear tiers' own estimate of "
-           "their per-rod contact force error from the rods' bending (fem.quasistatic; none with second-order rod kinematics, "
-           "which carry that term); the deformed render tier is within 1 % per rod of path tracing (`mlsim accuracy --stage render`)."]
+           "cantilever sensitivity 4 L / (pi r^3 E). tiers: solve/render per load (nonlinear+be<linear: the linear tier refused the load as beyond its model, the nonlinear tier answered it with backward-Euler dynamics); force_err_est: the fast tiers' own estimate of "
+           "their per-rod contact force error (fem.quasistatic: first-order kinematics from the rods' bending; Cosserat rods from "
+           "their ends' response turned with their tips, fem.rod_exact; none with second-order rod kinematics); releases: with "
+           "Cosserat rods, how many times a bent rod was let go (it snaps back at a step that depends on its frictional equilibrium: "
+           "where above 0 the estimate does not hold); the deformed render tier is within 1 % per rod of path tracing (`mlsim accuracy --stage render`)."]
     files.append(out / "sweep.md")
     atomic_bytes(files[-1], ("\n".join(md) + "\n").encode())
     files += _plots(out, table, varies, load_names)

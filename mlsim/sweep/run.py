@@ -170,6 +170,7 @@ def _load_metrics(scene, load: Load, cache_dir, wanted, escalate_to: str | None 
     summary = ep.summary()
     out["solve_tier"] = summary["tier"]
     out["solve_error_estimate"] = summary.get("geometric_error_estimate")
+    out["solve_error_releases"] = summary.get("geometric_error_releases")  # Cosserat rods: where the estimate does not hold
     if "brightness" in wanted:
         cam = res.results["camera"]
         frames = np.stack([grey(f) for f in cam.frames]) if len(cam.frames) else np.zeros((0, 1, 1), np.uint8)
