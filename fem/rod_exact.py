@@ -175,6 +175,14 @@ def attachments(X: np.ndarray, centre_xy: np.ndarray, base_z_m: float, length_m:
     return segment, along, offset
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis (3), broadcast: np.cross's arithmetic without its per-call overhead (the rounds call it
+    on small arrays thousands of times an episode)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def _rotation_quaternion(theta: np.ndarray) -> np.ndarray:
     """exp(theta) as unit quaternions (..., 4) for rotation vectors theta (..., 3)."""
     angle = np.linalg.norm(theta, axis=-1, keepdims=True)
@@ -255,6 +263,21 @@ class CosseratKinematics:
         _, H0 = cr.gradient_and_hessian(self._straight, section, np.array([1.0, 0.0, 0.0, 0.0]))
         self._H0_factor = np.linalg.cholesky(H0)
         self._responses = [self._unit_responses(j) for j in range(R)]
+        # the rods' points, attachments and unit responses padded to the most points a rod has (K), so that the rounds
+        # treat the loaded rods as one batch (padded points carry nothing); the per-rod loops cost the default demo's
+        # held rounds 14 ms each in numpy's small-array overhead
+        K = max((len(p) for p in self._points), default=0)
+        self._mask_p = np.zeros((R, K), dtype=bool)
+        self._index_p = np.zeros((R, K), dtype=np.int64)
+        self._segment_p, self._along_p = np.zeros((R, K), dtype=np.int64), np.zeros((R, K))
+        self._offset_p, self._X_p = np.zeros((R, K, 3)), np.zeros((R, K, 3))
+        self._points_resp_p = np.zeros((R, 6 * segments, 3 * K))
+        self._tip_resp_p = np.zeros((R, 6 * segments, 6))
+        for j, pts in enumerate(self._points):
+            k = len(pts)
+            self._mask_p[j, :k], self._index_p[j, :k], self._X_p[j, :k] = True, pts, self.X[pts]
+            self._segment_p[j, :k], self._along_p[j, :k], self._offset_p[j, :k] = self._attach[j]
+            self._points_resp_p[j, :, : 3 * k], self._tip_resp_p[j] = self._responses[j]
         self._warm: dict[int, cr.RodState] = {}
         self._last_answers = (None, [])  # (forces, _answers' list): the field recovery asks twice per distinct load
         self._held: dict[bytes, list] = {}  # the contact loop's held answers by their forces (the field recovery's)
@@ -314,6 +337,32 @@ class CosseratKinematics:
         psi = blocks[segment, :3]
         return (1.0 - along)[:, None] * node[segment] + along[:, None] * node[segment + 1] + np.cross(psi, offset)
 
+    def _linear_dofs_batch(self, rows: np.ndarray, forces: np.ndarray, tip_loads: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`_linear_dofs` of the rods ``rows`` (B,) at once: forces (B, K, 3) N on their padded points, tip_loads
+        (B, 6) (force N, moment N m) or None; (B, 6 N)."""
+        B = len(rows)
+        d = np.matmul(self._points_resp_p[rows], forces.reshape(B, -1, 1))[..., 0]
+        if tip_loads is not None:
+            d += np.matmul(self._tip_resp_p[rows], tip_loads[..., None])[..., 0]
+        return d
+
+    @staticmethod
+    def _linear_positions_batch(d: np.ndarray, segment: np.ndarray, along: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """:meth:`_linear_positions` of a batch: d (B, 6 N), segment, along (B, K), offset (B, K, 3); (B, K, 3) m."""
+        blocks = d.reshape(len(d), -1, 6)
+        node = np.concatenate([np.zeros((len(d), 1, 3)), blocks[:, :, 3:]], axis=1)  # x_0 .. x_N
+        e = segment[..., None]
+        psi = np.take_along_axis(blocks[:, :, :3], e, axis=1)
+        s = along[..., None]
+        return (1.0 - s) * np.take_along_axis(node, e, axis=1) + s * np.take_along_axis(node, e + 1, axis=1) + _cross(psi, offset)
+
+    def _linear_points_batch(self, rows: np.ndarray, u_r: np.ndarray, th_r: np.ndarray, d_lin: np.ndarray) -> np.ndarray:
+        """The padded points (B, K, 3) m of the rods ``rows`` where the linearised rod puts them: X + u_r + theta_r x (X - X_r)
+        plus the straight rod's linear dofs d_lin (B, 6 N) at their attachments (u_r, th_r (B, 3))."""
+        Y = self._X_p[rows]
+        return (Y + u_r[:, None] + _cross(th_r[:, None], Y - self.root_X[rows][:, None])
+                + self._linear_positions_batch(d_lin, self._segment_p[rows], self._along_p[rows], self._offset_p[rows]))
+
     def solve_rods(self, f: np.ndarray, hold=None, root_load: np.ndarray | None = None) -> dict[int, tuple[cr.RodState, cr.PointLoads, np.ndarray, np.ndarray, np.ndarray]]:
         """Each loaded rod in equilibrium under its points' forces f (m, 3) N, clamped where the body puts its
         root, all in one batch (:func:`fem.cosserat_rod.solve_static`), each from its last answer:
@@ -330,36 +379,48 @@ class CosseratKinematics:
         load, plus the nonlinear part the round froze). At the rounds' fixed point the rod sits there and the
         springs carry nothing; before it, they hold a rod pressed past its free Euler load by a face that
         grips its tip, as the face does. Without: dead loads, and the guard (if set) runs first."""
+        batch = self._solve_batch(f, hold, root_load)
+        if batch is None:
+            return {}
+        rows, state, loads, u_r, th_r, inertial = batch
+        out = {}
+        for b, j in enumerate(rows):
+            k = len(self._points[j])
+            springs = (None, None) if loads.stiffness_n_m is None else (loads.stiffness_n_m[b, :k], loads.anchor_m[b, :k])
+            out[int(j)] = (cr.RodState(state.x[b], state.q[b]), cr.PointLoads(loads.segment[b, :k], loads.along[b, :k], loads.offset_m[b, :k],
+                                                                               loads.force_n[b, :k], *springs), u_r[b], th_r[b], inertial[b])
+        return out
+
+    def _solve_batch(self, f: np.ndarray, hold=None, root_load: np.ndarray | None = None):
+        """:meth:`solve_rods` as one batch: (rows (B,), the rods' state (B, ...), their loads on the padded points (B, K),
+        root translations and rotations (B, 3), the nodes' inertial forces (B, N + 1, 3) N), or None where no rod is
+        loaded or moving."""
         if self.guard is not None and hold is None:
             self.guard(f)
         u_r, th_r = self.root_motion(f if root_load is None else f + root_load)
         loaded = [j for j, pts in enumerate(self._points) if len(pts) and (np.any(f[pts]) or j in self._motion)]
         if not loaded:
-            return {}
-        K = max(len(self._points[j]) for j in loaded)
-        B = len(loaded)
-        segment, along = np.zeros((B, K), dtype=int), np.zeros((B, K))
-        offset, force = np.zeros((B, K, 3)), np.zeros((B, K, 3))
-        stiffness, anchor = (np.zeros((B, K, 3, 3)), np.zeros((B, K, 3))) if hold is not None else (None, None)
-        for b, j in enumerate(loaded):
-            pts = self._points[j]
-            k = len(pts)
-            segment[b, :k], along[b, :k], offset[b, :k] = self._attach[j]
-            force[b, :k] = f[pts]
-            if hold is not None:
-                q_frozen, f_pd, K_pts = hold
-                d_lin = self._linear_dofs(j, f[pts] + f_pd[pts])
-                anchor[b, :k] = (self.X[pts] + u_r[j] + np.cross(th_r[j], self.X[pts] - self.root_X[j])
-                                 + self._linear_positions(d_lin, *self._attach[j]) + q_frozen[pts])
-                stiffness[b, :k] = K_pts[pts]
-        roots, clamps, straight = self._at_rest(loaded, u_r[loaded], th_r[loaded])
+            return None
+        rows = np.array(loaded, dtype=np.int64)
+        mask = self._mask_p[rows][..., None]
+        index = self._index_p[rows]
+        u_r, th_r = u_r[rows], th_r[rows]
+        segment, along, offset = self._segment_p[rows], self._along_p[rows], self._offset_p[rows]
+        force = np.where(mask, f[index], 0.0)
+        stiffness = anchor = None
+        if hold is not None:
+            q_frozen, f_pd, K_pts = hold
+            d_lin = self._linear_dofs_batch(rows, np.where(mask, force + f_pd[index], 0.0))
+            anchor = np.where(mask, self._linear_points_batch(rows, u_r, th_r, d_lin) + q_frozen[index], 0.0)
+            stiffness = np.where(mask[..., None], K_pts[index], 0.0)
+        roots, clamps, straight = self._at_rest(rows, u_r, th_r)
         x, q = straight.x.copy(), straight.q.copy()
         for b, j in enumerate(loaded):
             warm = self._warm.get(j)
             if warm is not None:  # the last answer, carried to today's root
                 x[b], q[b] = warm.x - warm.x[:1] + roots[b], warm.q
         loads = cr.PointLoads(segment, along, offset, force, stiffness, anchor)
-        nodes = None
+        solve_loads, nodes = loads, None
         if self.inertia is not None:
             # the last step's nodes and velocities; a rod at rest then: straight where the body puts its root now
             x_n, v_n = straight.x.copy(), np.zeros_like(straight.x)
@@ -367,21 +428,16 @@ class CosseratKinematics:
                 if j in self._motion:
                     x_n[b], v_n[b] = self._motion[j]
             nodes = self.inertia.springs(self.section, x_n, v_n)
-            loads = cd.joined(loads, nodes)
+            solve_loads = cd.joined(loads, nodes)
         try:
-            state = cr.solve_static(self.section, self.segments, loads=loads, clamp=clamps, root_m=roots, start=cr.RodState(x, q), rtol=1e-8)
+            state = cr.solve_static(self.section, self.segments, loads=solve_loads, clamp=clamps, root_m=roots, start=cr.RodState(x, q), rtol=1e-8)
         except cr.SolverError:
             # a last answer on another branch or too far: from the straight rods, in increments
-            state = cr.solve_static(self.section, self.segments, loads=loads, clamp=clamps, root_m=roots, start=straight, increments=4, rtol=1e-8)
+            state = cr.solve_static(self.section, self.segments, loads=solve_loads, clamp=clamps, root_m=roots, start=straight, increments=4, rtol=1e-8)
         inertial = np.zeros_like(state.x) if nodes is None else self.inertia.nodal_forces(nodes, state)
-        out = {}
         for b, j in enumerate(loaded):
-            k = len(self._points[j])
-            rod = cr.RodState(state.x[b], state.q[b])
-            self._warm[j] = rod
-            springs = (None, None) if hold is None else (stiffness[b, :k], anchor[b, :k])
-            out[j] = (rod, cr.PointLoads(segment[b, :k], along[b, :k], offset[b, :k], force[b, :k], *springs), u_r[j], th_r[j], inertial[b])
-        return out
+            self._warm[j] = cr.RodState(state.x[b], state.q[b])
+        return rows, state, loads, u_r, th_r, inertial
 
     def _at_rest(self, rods, u_r: np.ndarray, th_r: np.ndarray) -> tuple[np.ndarray, np.ndarray, cr.RodState]:
         """(roots (B, 3) m, clamp frames (B, 4), the straight rods) of the rods ``rods`` where the body puts their
@@ -468,32 +524,40 @@ class CosseratKinematics:
         return answers
 
     def _rod_answers_at(self, f: np.ndarray, hold, root_load):
-        """:meth:`_rod_answers` with the roots under f + root_load."""
-        for j, (state, loads, u_r, th_r, f_in) in self.solve_rods(f, hold, root_load).items():
-            pts = self._points[j]
-            x_r = self.root_X[j] + u_r
-            p = loads.positions(state)
-            fj = loads.force_n
-            pull = loads.carried(state, p) - fj
-            F_s = pull.sum(axis=0)
-            M_s = np.sum(np.cross(p - state.x[-1], pull), axis=0)
-            tip_X = self.root_X[j] + np.array([0.0, 0.0, self.sections.length_m])
-            # the root moment in the bent rod less the straight one's, of the forces and the springs' resultant
-            moment = (np.sum(np.cross(p - x_r, fj) - np.cross(self.X[pts] - self.root_X[j], fj), axis=0)
-                      + np.cross(state.x[-1] - x_r - (tip_X - self.root_X[j]), F_s) + np.sum(np.cross(state.x - x_r, f_in), axis=0))
-            # the inertial resultant and a horizontal load on the loaded points (weights |f_k|) whose root moment is
-            # the rest of the horizontal difference
-            w = np.linalg.norm(fj, axis=1)
-            w = w / w.sum() if w.sum() > 0.0 else np.full(len(w), 1.0 / len(w))
-            F_in = f_in.sum(axis=0)
-            moment = moment - np.cross(w @ (self.X[pts] - self.root_X[j]), F_in)
-            lever = float(np.sum(w * (self.X[pts, 2] - self.root_X[j, 2])))
-            f_pd = np.zeros(3)
-            if lever > 0.0:
-                f_pd[:2] = -np.cross([0.0, 0.0, 1.0], [moment[0], moment[1], 0.0])[:2] / lever
-            load = w[:, None] * (f_pd + F_in)
-            d_lin = self._linear_dofs(j, fj + load, F_s, M_s)
-            yield j, state, u_r, th_r, load, d_lin, f_in
+        """:meth:`_rod_answers` with the roots under f + root_load (the loaded rods as one batch, padded points
+        carrying nothing)."""
+        batch = self._solve_batch(f, hold, root_load)
+        if batch is None:
+            return
+        rows, state, loads, u_r, th_r, f_in = batch
+        mask = self._mask_p[rows]
+        Y = self._X_p[rows] - self.root_X[rows][:, None]  # the points from the root, at rest
+        x_r = (self.root_X[rows] + u_r)[:, None]
+        p = loads.positions(state)
+        fj = loads.force_n
+        pull = loads.carried(state, p) - fj
+        F_s = pull.sum(axis=1)
+        tip = state.x[:, -1]
+        M_s = _cross(p - tip[:, None], pull).sum(axis=1)
+        # the root moment in the bent rod less the straight one's, of the forces and the springs' resultant
+        moment = ((_cross(p - x_r, fj) - _cross(Y, fj)).sum(axis=1)
+                  + _cross(tip - x_r[:, 0] - np.array([0.0, 0.0, self.sections.length_m]), F_s) + _cross(state.x - x_r, f_in).sum(axis=1))
+        # the inertial resultant and a horizontal load on the loaded points (weights |f_k|) whose root moment is
+        # the rest of the horizontal difference
+        w = np.linalg.norm(fj, axis=2)
+        total = w.sum(axis=1, keepdims=True)
+        w = np.where(total > 0.0, w / np.where(total > 0.0, total, 1.0), mask / mask.sum(axis=1, keepdims=True))
+        F_in = f_in.sum(axis=1)
+        moment = moment - _cross(np.einsum("bk,bkc->bc", w, Y), F_in)
+        lever = np.einsum("bk,bk->b", w, Y[..., 2])
+        f_pd = np.zeros_like(F_in)
+        up = lever > 0.0
+        f_pd[up, 0], f_pd[up, 1] = moment[up, 1] / lever[up], -moment[up, 0] / lever[up]  # -z x (M_x, M_y, 0) / lever
+        load = w[..., None] * (f_pd + F_in)[:, None]
+        d_lin = self._linear_dofs_batch(rows, fj + load, np.concatenate([F_s, M_s], axis=1))
+        for b, j in enumerate(rows):
+            k = len(self._points[j])
+            yield int(j), cr.RodState(state.x[b], state.q[b]), u_r[b], th_r[b], load[b, :k], d_lin[b], f_in[b]
 
     def _nonlinear_part(self, j: int, state: cr.RodState, u_r, th_r, d_lin, Y: np.ndarray) -> np.ndarray:
         """Points Y (k, 3) m of rod j carried by the rod in ``state`` less the same rod linearised (q's rule)."""
@@ -509,10 +573,20 @@ class CosseratKinematics:
         f = np.asarray(f_points, dtype=float)
         q = np.zeros_like(f)
         load = np.zeros_like(f)
-        for j, state, u_r, th_r, load_j, d_lin, _ in self._answers(f, hold):
+        answers = self._answers(f, hold)
+        if not answers:
+            return q, load
+        # the nonlinear part of every loaded rod at once (q's rule, :meth:`_nonlinear_part`, at its own points)
+        rows = np.array([a[0] for a in answers], dtype=np.int64)
+        state = cr.RodState(np.stack([a[1].x for a in answers]), np.stack([a[1].q for a in answers]))
+        placed = cr.PointLoads(self._segment_p[rows], self._along_p[rows], self._offset_p[rows], np.zeros(self._X_p[rows].shape)).positions(state)
+        linear = self._linear_points_batch(rows, np.stack([a[2] for a in answers]), np.stack([a[3] for a in answers]),
+                                           np.stack([a[5] for a in answers]))
+        q_rods = placed - linear
+        for b, (j, *_, load_j, _, _) in enumerate(answers):
             pts = self._points[j]
             load[pts] = load_j
-            q[pts] = self._nonlinear_part(j, state, u_r, th_r, d_lin, self.X[pts])
+            q[pts] = q_rods[b, : len(pts)]
         return q, load
 
     def q(self, f: np.ndarray) -> np.ndarray:

@@ -95,6 +95,10 @@ def test_q_vanishes_without_force_and_is_quadratic_at_small_force(rod0):
     np.testing.assert_allclose(q2, 4.0 * q1, rtol=0, atol=0.03 * 4.0 * np.abs(q1).max())
     q = kin.q(f)
     assert q[:, 2].mean() < 0
+    # the rounds' batch over the loaded rods (padded points) is the per-rod rule, point by point
+    (j, state, u_r, th_r, _, d_lin, _), = kin._answers(f)
+    np.testing.assert_allclose(q[kin._points[j]], kin._nonlinear_part(j, state, u_r, th_r, d_lin, kin.X[kin._points[j]]),
+                               rtol=0, atol=1e-12 * np.abs(q).max())
 
 
 def test_the_pdelta_load_carries_the_bent_rods_extra_root_moment(rod0):
