@@ -13,7 +13,10 @@ machine and the medians go to stdout and to ``OUT/tiers.json``. The nonlinear ti
 episode (--nonlinear-repeats). Usage:
 
     .venv/bin/python benchmarks/bench_tiers.py [--repeats 3] [--tiers linear reduced nonlinear]
-        [--contact-solvers admm newton] [--scene SCENE] [--out out/bench]
+        [--contact-solvers admm newton] [--scene SCENE] [--set PATH=VALUE ...] [--out out/bench]
+
+The Cosserat rods' held rounds (issue 38): ``--tiers linear reduced --contact-solvers admm --set
+'fidelity.solve.rod_kinematics="cosserat"' --set 'fidelity.solve.rod_coupling="held"'``.
 """
 
 from __future__ import annotations
@@ -100,8 +103,12 @@ def main() -> None:
     ap.add_argument("--contact-solvers", nargs="+", default=["newton", "admm"], choices=["newton", "admm"],
                     help="the linear and reduced tiers' contact solvers to time (fidelity.solve.contact_solver)")
     ap.add_argument("--scene", default=str(ROOT / "scenes" / "mavig_default.toml"))
+    ap.add_argument("--set", action="append", metavar="PATH=VALUE", dest="sets",
+                    help='a scene field for every run, as mlsim run\'s (TOML values), e.g. fidelity.solve.rod_kinematics="cosserat"')
     args = ap.parse_args()
-    scene = load_scene(args.scene)
+    from mlsim.cli_grammar import parse_sets
+
+    scene = load_scene(args.scene).with_values(parse_sets(args.sets))
     mesh = pipeline.run(scene, out_dir=None, outputs=("mesh",), progress=False, log=lambda m: None).results["mesh"][0]
     settings = qs.SolveSettings.from_scene(scene)
     lame, rho, _ = qs.layer_materials(scene)
