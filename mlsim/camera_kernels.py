@@ -17,7 +17,30 @@ from numba import njit
 __all__ = ["bayer_mono_codes"]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always", error_model="numpy")
+def _code(mu, zz, dark, cap, read_var, full_well, gain, black, full_scale, to8):
+    """One photosite's 8-bit code from its mean before the dark charge (float32) and its normal."""
+    mu = mu + dark
+    mu = min(mu, cap)
+    s2 = mu + read_var
+    c = mu / s2
+    c = c * np.float32(1.0 / 6.0)
+    s = np.sqrt(s2) * zz
+    e = zz * zz
+    e = e - np.float32(1.0)
+    e = e * c
+    e = e + s
+    e = e + mu
+    e = min(e, full_well)
+    dn = e * gain
+    dn = dn + black
+    dn = np.rint(dn)
+    dn = min(max(dn, np.float32(0.0)), full_scale)
+    dn = dn * to8
+    return np.uint8(np.floor(dn))
+
+
+@njit(cache=True, error_model="numpy")  # a division by zero gives numpy's inf or NaN, not a raise (and the loop vectorises)
 def bayer_mono_codes(rad, mono_k, k, rel, dark, cap, read_var, full_well, z, gain, black, full_scale, to8, out):
     """out (H, W) uint8, in place: the 8-bit code of each RGGB photosite of the mono radiance rad
     (H, W) float32 seen through its channel's factor mono_k (3,) float32 (red at row 0, column 0).
@@ -29,34 +52,21 @@ def bayer_mono_codes(rad, mono_k, k, rel, dark, cap, read_var, full_well, z, gai
     rint(e gain + black) clipped to [0, full_scale], times to8, floored. The exact Poisson branch
     is not here: the caller takes numpy's path where it applies. Returns nothing."""
     H, W = rad.shape
-    has_rel = rel.shape[0] > 0
-    sixth = np.float32(1.0 / 6.0)
-    one = np.float32(1.0)
-    zero = np.float32(0.0)
-    for y in range(H):
-        for x in range(W):
-            # RGGB: red (0, 0), green (0, 1) and (1, 0), blue (1, 1)
-            ch = (y & 1) + (x & 1)
-            mu = rad[y, x] * mono_k[ch]
-            mu = mu * k
-            if has_rel:
-                mu = np.float32(np.float64(mu) * rel[y, x])
-            mu = mu + dark
-            mu = min(mu, cap)
-            zz = z[y * W + x]
-            s2 = mu + read_var
-            c = mu / s2
-            c = c * sixth
-            s = np.sqrt(s2) * zz
-            e = zz * zz
-            e = e - one
-            e = e * c
-            e = e + s
-            e = e + mu
-            e = min(e, full_well)
-            dn = e * gain
-            dn = dn + black
-            dn = np.rint(dn)
-            dn = min(max(dn, zero), full_scale)
-            dn = dn * to8
-            out[y, x] = np.uint8(np.floor(dn))
+    # each row's channel factor per column: RGGB, red (0, 0), green (0, 1) and (1, 0), blue (1, 1)
+    factor = np.empty((2, W), np.float32)
+    for x in range(W):
+        factor[0, x] = mono_k[x & 1]
+        factor[1, x] = mono_k[1 + (x & 1)]
+    # the two loops differ only by the relative illumination (kept out of the inner loop, which vectorises)
+    if rel.shape[0] > 0:
+        for y in range(H):
+            f = factor[y & 1]
+            for x in range(W):
+                mu = np.float32(np.float64((rad[y, x] * f[x]) * k) * rel[y, x])
+                out[y, x] = _code(mu, z[y * W + x], dark, cap, read_var, full_well, gain, black, full_scale, to8)
+    else:
+        for y in range(H):
+            f = factor[y & 1]
+            for x in range(W):
+                mu = (rad[y, x] * f[x]) * k
+                out[y, x] = _code(mu, z[y * W + x], dark, cap, read_var, full_well, gain, black, full_scale, to8)
