@@ -18,7 +18,7 @@ from fem.field_kernels import sparse_product
 EDGE_EPS = 1e-7
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def project_through_interfaces(vertices_mm, inv_length, r2_step, z_step, pixel_map, uv):
     """Image positions uv (N, 2) (continuous pixel coordinates) of points (N, 3) mm above the core's
     bottom face, in place.
@@ -35,7 +35,7 @@ def project_through_interfaces(vertices_mm, inv_length, r2_step, z_step, pixel_m
     return outside
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _through_interfaces(x, y, z, inv_length, r2_step, z_step, pixel_map):
     """(u, v, 1 if the point (mm) lies outside the table's grid else 0): one point of
     :func:`project_through_interfaces`."""
@@ -62,7 +62,7 @@ TILE_SHIFT = 3
 SPARSE_LIT_FRACTION = 0.1
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def project_frames(vertices_m, number, inv_length, r2_step, z_step, pixel_map, uv, depth):
     """The sheet's frames placed in the image for the rasteriser, in its vertex numbering: uv
     (F, N, 2) (as :func:`project_through_interfaces`, of ``vertices_m`` (F, N, 3) m in mm) and
@@ -127,7 +127,7 @@ def _dark_faces_that_matter(uv, faces, value, per_side, width_samples, n_rows, n
         needed[f] = hit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rasterise_frame(uv, depth, faces, value, per_side, orientation, height_px, width_px, throughput, image):
     """One frame's direct light into ``image`` (height_px, width_px), in the faces' order: where a
     camera-facing triangle covers a sample and is nearer (smaller ``depth``, interpolated) than
@@ -235,7 +235,7 @@ def _rasterise_frame(uv, depth, faces, value, per_side, orientation, height_px, 
                 image[py, px] += acc / (k * k)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def rasterise_direct(uv, depth, faces, value, per_side, orientation, height_px, width_px, throughput):
     """(F, height_px, width_px) float32: per frame and pixel, the mean over its per_side x per_side
     samples of throughput (H k, W k) times the ``value`` (F, N) of the nearest camera-facing
