@@ -263,3 +263,35 @@ def test_the_transport_product_of_frames_with_few_lit_vertices_keeps_the_row_pro
     T = TransportMatrix(shuffled, 30, 20, 16, 0.0, 0.0)
     assert T._columns() is None
     np.testing.assert_allclose(T.apply(e), full.T.reshape(6, 30, 20), rtol=1e-5)
+
+
+def test_the_product_added_into_the_images_is_the_product_then_its_addition_bit_for_bit():
+    """csr_times_dense_into (the product's rows summed in blocks and added straight to their
+    frames' images) gives the bits of csr_times_dense into a zeroed array then added to the images
+    (numpy's ``images[frames] += out.T``), for a row count that is not a multiple of its block,
+    a subset of the frames, and on one thread as on all."""
+    from mlsim.render.kernels import PRODUCT_ROWS, csr_times_dense_into
+
+    rng = np.random.default_rng(8)
+    P = 3 * PRODUCT_ROWS + 37
+    A = sp.random(P, 150, density=0.04, random_state=2, format="csr", dtype=np.float32)
+    E = (rng.random((150, 4)) * rng.random((150, 1)) ** 8).astype(np.float32)  # spread exponents: rounding matters
+    images = (rng.random((6, P)) * 1e-3).astype(np.float32)
+    frames = np.array([5, 0, 2, 3])
+    out = np.zeros((P, 4), np.float32)
+    csr_times_dense(A.indptr, A.indices, A.data, E, out)
+    ref = images.copy()
+    for u, f in enumerate(frames):
+        ref[f] += out[:, u]
+    got = images.copy()
+    csr_times_dense_into(A.indptr, A.indices, A.data, E, frames, got)
+    np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32))
+    assert np.array_equal(got[[1, 4]], images[[1, 4]])  # the frames not named are left alone
+    threads = numba.get_num_threads()
+    one = images.copy()
+    try:
+        numba.set_num_threads(1)
+        csr_times_dense_into(A.indptr, A.indices, A.data, E, frames, one)
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(one, got)
