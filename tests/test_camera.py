@@ -352,3 +352,80 @@ def test_capture_mono_is_capture_of_the_channels_byte_for_byte(overrides):
         C.capture_mono(bad, k, rng, p)
     with pytest.raises(ValueError, match=r"radiance is 64 x 81 px \(H x W\) but the camera is 64 x 80"):
         C.Camera(p).mono(np.zeros((64, 81), np.float32), k, rng)
+
+
+def test_the_uniforms_from_whole_words_are_numpys_float32_uniforms():
+    """_uniform_f32 (PCG64's 64-bit words split into two float32 uniforms) gives numpy's
+    ``rng.random(n, dtype=np.float32)`` bytes and leaves the generator where numpy leaves it (the
+    next draws agree); a generator holding a spare half-word, or another bit generator, takes
+    numpy's loop (the same bytes)."""
+    a, b = np.random.default_rng(11), np.random.default_rng(11)
+    for n in (2, 10, 350 * 350, 2 * 61251):
+        assert np.array_equal(a.random(n, dtype=np.float32).view(np.uint32), C._uniform_f32(b, n).view(np.uint32)), n
+        assert a.random() == b.random()
+    a.random(1, dtype=np.float32), b.random(1, dtype=np.float32)  # a spare half-word held
+    assert np.array_equal(a.random(6, dtype=np.float32), C._uniform_f32(b, 6))
+    assert a.random(3, dtype=np.float32).tolist() == C._uniform_f32(b, 3).tolist()
+    p, q = np.random.Generator(np.random.Philox(3)), np.random.Generator(np.random.Philox(3))
+    assert np.array_equal(p.random(8, dtype=np.float32), C._uniform_f32(q, 8))
+    u = C._uniform_f32(np.random.default_rng(0), 200_000)
+    assert u.dtype == np.float32 and u.min() >= 0.0 and u.max() < 1.0
+    assert stats.kstest(u, "uniform").pvalue > 1e-3
+
+
+@pytest.mark.parametrize("overrides, step", [({}, 12), ({"bayer": False}, 12), ({"black_level_dn": 2.0}, 0),
+                                             ({"black_level_dn": 51.5}, None), ({"gain_db": 30.0}, None), ({"read_noise_e": 0.3, "gain_db": 30.0}, None)],
+                         ids=["default", "no-bayer", "clipped-at-zero", "mean-on-a-step", "high-gain", "exact-poisson"])
+def test_a_frame_without_light_is_drawn_only_where_its_noise_can_reach_another_step(overrides, step):
+    """Camera.dark (the DLLM's idle frames) is ``camera(zeros, rng)`` byte for byte, frame after
+    frame, and leaves the generator where that leaves it. dark_frame_dn8 names the 8-bit step
+    that every draw reads (the defaults: 12, dark photosites at 49.4-50.6 DN of 10 bits) and
+    refuses where a draw could read another: a mean on a step's edge (black level 51.5: 50.9-52.1
+    DN), high gain (30 dB: +-18 DN), or the exact Poisson branch (read noise 0.3 e-: counts; at 30 dB)."""
+    p = C.CameraParams(**(overrides | {"width_px": 48, "height_px": 40}))
+    assert C.dark_frame_dn8(p) == step
+    cam = C.Camera(p)
+    for noise in (True, False):
+        a, b = np.random.default_rng(3), np.random.default_rng(3)
+        ref = np.stack([cam(np.zeros((40, 48, 3), np.float32), a, noise=noise) for _ in range(4)])
+        got = np.stack([cam.dark(b, noise=noise) for _ in range(4)])
+        assert np.array_equal(got, ref), noise
+        assert a.random() == b.random()
+        if step is not None:
+            assert np.all(ref == step)
+        elif noise:
+            assert len(np.unique(ref)) > 1  # the draws do reach another step
+    # the noise's full range: a large dark frame drawn at the defaults reads the one step
+    big = C.capture(np.zeros((350, 350, 3), np.float32), np.random.default_rng(1), C.CameraParams())
+    assert np.all(big == C.dark_frame_dn8(C.CameraParams()))
+
+
+@pytest.mark.parametrize("overrides", [{}, {"cos4_falloff": True, "gain_db": 24.0}, {"adc_bits": 12, "gain_db": 7.3}, {"full_well_e": 10.0},
+                                       {"black_level_dn": 0.0}], ids=["default", "cos4-gain", "12bit", "tiny-well", "no-black"])
+def test_the_compiled_bayer_pass_is_numpys_exposure_and_read_out_byte_for_byte(overrides):
+    """mlsim.camera_kernels.bayer_mono_codes (capture_mono's one pass per frame where the read
+    noise rules out the exact Poisson branch) gives _expose_frame + _read_out's codes byte for
+    byte, from the dark to a radiance that overflows the mean (3e38), and draws the same normals
+    (the generators agree afterwards); where the exact branch may apply it declines, drawing nothing."""
+    p = C.CameraParams(**(overrides | {"width_px": 80, "height_px": 64}))
+    k = np.array([0.078, 0.552, 0.273], np.float32)
+    rng = np.random.default_rng(5)
+    top = 1.5 * p.effective_full_well_e / p.electrons_per_radiance_m2_sr_s / float(k.max())
+    rad = (rng.random((4, 64, 80)) ** 4 * top).astype(np.float32)
+    rad[0, :10] = 0.0
+    rad[1, :5] = np.float32(3e38)
+    cfg = C._exposure_config(rad.shape[1:], p.electrons_per_radiance_m2_sr_s, p.dark_electrons, p.effective_read_noise_e,
+                             p.effective_full_well_e, True, True, p.relative_illumination(), C.EXACT_POISSON_BELOW_E2, np.float32)
+    a, b = np.random.default_rng(9), np.random.default_rng(9)
+    ref, got = np.empty(rad.shape + (3,), np.uint8), np.empty(rad.shape + (3,), np.uint8)
+    for i in range(len(rad)):
+        C._read_out(C._expose_frame(rad[i], a, cfg, mono_k=k), p, ref[i])
+        assert C._capture_mono_compiled(rad[i], b, cfg, k, p, got[i])
+    assert np.array_equal(got, ref)
+    assert a.random() == b.random()
+    assert len(np.unique(ref)) > (1 if overrides.get("full_well_e") else 100)
+    exact = C._exposure_config(rad.shape[1:], p.electrons_per_radiance_m2_sr_s, p.dark_electrons, 0.5, p.effective_full_well_e, True, True,
+                               None, C.EXACT_POISSON_BELOW_E2, np.float32)
+    state = b.bit_generator.state
+    assert not C._capture_mono_compiled(rad[0], b, exact, k, p, got[0])
+    assert b.bit_generator.state == state

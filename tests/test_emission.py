@@ -125,6 +125,25 @@ def test_the_detrapped_fraction_is_the_one_before_issue_40_bit_for_bit():
     assert one.tobytes() == _detrapped_fraction_before_issue_40(t[:1], sigma[:1], windows, DetrappingParams())[0].tobytes()
 
 
+def test_the_merged_grid_interpolates_the_stress_as_numpy_did_bit_for_bit():
+    """merged_grid's compiled interpolation (mlsim.emission.kernels.interpolate_rows) against
+    numpy's ``sigma[idx] * (1 - w)[:, None] + sigma[nxt] * w[:, None]``, bit for bit, with times
+    before, between, on and after the steps."""
+    from mlsim.emission.detrapping import merged_grid
+
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.uniform(0.002, 0.02, 30))
+    sigma = rng.uniform(0.0, 1e6, (30, 70)) * (rng.random((30, 70)) < 0.8)
+    windows = np.stack([np.linspace(t[0] - 0.05, t[-1] + 0.05, 9), np.linspace(t[0] - 0.04, t[-1] + 0.06, 9)], axis=1)
+    windows[3] = [t[7], t[9]]  # edges on steps
+    times, sig, _ = merged_grid(t, sigma, windows)
+    idx = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(t) - 1)
+    nxt = np.minimum(idx + 1, len(t) - 1)
+    span = t[nxt] - t[idx]
+    w = np.where(span > 0, np.clip((times - t[idx]) / np.where(span > 0, span, 1.0), 0.0, 1.0), 0.0)
+    assert sig.tobytes() == (sigma[idx] * (1.0 - w)[:, None] + sigma[nxt] * w[:, None]).tobytes()
+
+
 def test_constant_stress_gives_no_light():
     t = np.linspace(0, 1, 11)
     sigma = np.full((11, 3), 4e5)

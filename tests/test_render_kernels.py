@@ -38,7 +38,7 @@ def test_the_rasteriser_reads_vertex_values_at_samples_on_vertices_and_never_goe
     and on edges, so each pixel is exactly its vertex's value (times the throughput), whichever
     triangle claims it; half the vertices dark beside bright ones, and no pixel below zero. The
     nearer of two overlapping sheets wins (the z-buffer)."""
-    from mlsim.render.kernels import rasterise_direct
+    from mlsim.render.kernels import rasterise_arrays as rasterise_direct
 
     n = 24
     yy, xx = np.mgrid[0:n, 0:n]
@@ -147,7 +147,8 @@ def test_the_rasteriser_is_the_banded_one_before_it_bit_for_bit(per_side):
     depths in a shuffled face order; sheets reaching past the image's edges; one thread and all."""
     from raster_reference import rasterise_direct_banded
 
-    from mlsim.render.kernels import SPARSE_LIT_FRACTION, rasterise_direct
+    from mlsim.render.kernels import SPARSE_LIT_FRACTION
+    from mlsim.render.kernels import rasterise_arrays as rasterise_direct
 
     rng = np.random.default_rng(11)
     n = 40
@@ -179,10 +180,10 @@ def test_the_rasteriser_is_the_banded_one_before_it_bit_for_bit(per_side):
 
 
 def test_the_frames_projection_is_the_sheets_in_the_rasters_numbering():
-    """project_frames puts each frame's vertex i at number[i] with the bits of
-    project_through_interfaces (of the vertices in mm) and of numpy's float32 depth; it counts the
-    points outside the table and the non-finite ones (and skips those)."""
-    from mlsim.render.kernels import project_frames, project_through_interfaces
+    """project_frames puts each frame's vertex i at row number[i] of its table with the bits of
+    project_through_interfaces (of the vertices in mm), of numpy's float32 depth and of its float32
+    value; it counts the points outside the table and the non-finite ones (and skips those)."""
+    from mlsim.render.kernels import VERTEX_FIELDS, project_frames, project_through_interfaces
 
     rng = np.random.default_rng(4)
     inv_length = rng.uniform(0.02, 0.03, (64, 16))
@@ -190,18 +191,19 @@ def test_the_frames_projection_is_the_sheets_in_the_rasters_numbering():
     pixel_map = np.array([[175.0, 900.0, 3.0], [175.0, -2.0, 900.0]])
     V = np.concatenate([rng.uniform(-10, 10, (3, 200, 2)), rng.uniform(0, 7, (3, 200, 1))], axis=2) * 1e-3
     number = rng.permutation(200)
-    uv = np.empty((3, 200, 2))
-    depth = np.empty((3, 200), np.float32)
-    assert project_frames(V, number, inv_length, r2_step, z_step, pixel_map, uv, depth) == (0, 0)
+    value = (rng.random((3, 200)) * 1e15).astype(np.float32)
+    table = np.empty((3, 200, VERTEX_FIELDS))
+    assert project_frames(V, number, value, inv_length, r2_step, z_step, pixel_map, table) == (0, 0)
     flat = np.ascontiguousarray(V.reshape(-1, 3) * 1e3)
     ref = np.empty((600, 2))
     assert project_through_interfaces(flat, inv_length, r2_step, z_step, pixel_map, ref) == 0
-    np.testing.assert_array_equal(uv[:, number], ref.reshape(3, 200, 2))
-    np.testing.assert_array_equal(depth[:, number], V[..., 2].astype(np.float32))
+    np.testing.assert_array_equal(table[:, number, :2], ref.reshape(3, 200, 2))
+    np.testing.assert_array_equal(table[:, number, 2], V[..., 2].astype(np.float32).astype(np.float64))
+    np.testing.assert_array_equal(table[:, number, 3], value.astype(np.float64))
     V[1, 7, 2] = -1e-3  # below the table
     V[2, 9, 0] = 1.0  # far off the axis
     V[0, 3, 1] = np.nan
-    assert project_frames(V, number, inv_length, r2_step, z_step, pixel_map, uv, depth) == (2, 1)
+    assert project_frames(V, number, value, inv_length, r2_step, z_step, pixel_map, table) == (2, 1)
 
 
 def test_the_repeated_frames_are_numpys():
@@ -263,3 +265,35 @@ def test_the_transport_product_of_frames_with_few_lit_vertices_keeps_the_row_pro
     T = TransportMatrix(shuffled, 30, 20, 16, 0.0, 0.0)
     assert T._columns() is None
     np.testing.assert_allclose(T.apply(e), full.T.reshape(6, 30, 20), rtol=1e-5)
+
+
+def test_the_product_added_into_the_images_is_the_product_then_its_addition_bit_for_bit():
+    """csr_times_dense_into (the product's rows summed in blocks and added straight to their
+    frames' images) gives the bits of csr_times_dense into a zeroed array then added to the images
+    (numpy's ``images[frames] += out.T``), for a row count that is not a multiple of its block,
+    a subset of the frames, and on one thread as on all."""
+    from mlsim.render.kernels import PRODUCT_ROWS, csr_times_dense_into
+
+    rng = np.random.default_rng(8)
+    P = 3 * PRODUCT_ROWS + 37
+    A = sp.random(P, 150, density=0.04, random_state=2, format="csr", dtype=np.float32)
+    E = (rng.random((150, 4)) * rng.random((150, 1)) ** 8).astype(np.float32)  # spread exponents: rounding matters
+    images = (rng.random((6, P)) * 1e-3).astype(np.float32)
+    frames = np.array([5, 0, 2, 3])
+    out = np.zeros((P, 4), np.float32)
+    csr_times_dense(A.indptr, A.indices, A.data, E, out)
+    ref = images.copy()
+    for u, f in enumerate(frames):
+        ref[f] += out[:, u]
+    got = images.copy()
+    csr_times_dense_into(A.indptr, A.indices, A.data, E, frames, got)
+    np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32))
+    assert np.array_equal(got[[1, 4]], images[[1, 4]])  # the frames not named are left alone
+    threads = numba.get_num_threads()
+    one = images.copy()
+    try:
+        numba.set_num_threads(1)
+        csr_times_dense_into(A.indptr, A.indices, A.data, E, frames, one)
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(one, got)

@@ -186,7 +186,7 @@ class DirectRaster:
     def images(self, vertices_m, radiance) -> np.ndarray:
         """Direct-light images (F, H, W) float32 of per-vertex radiance (F, N) on the sheet at
         vertices_m (F, N, 3) m (the same units as :meth:`mlsim.render.sensor_scene.SensorScene.render`)."""
-        from mlsim.render.kernels import project_frames, rasterise_direct
+        from mlsim.render.kernels import VERTEX_FIELDS, project_frames, rasterise_direct
 
         V = np.asarray(vertices_m, dtype=np.float64)
         e = np.ascontiguousarray(radiance, dtype=np.float32)
@@ -194,14 +194,14 @@ class DirectRaster:
             raise ValueError(f"vertices_m {V.shape} and radiance {e.shape}: must be (F, {self.n_vertices}, 3) and (F, {self.n_vertices})")
         require_finite(e, "radiance (frames, vertices) to rasterise", RADIANCE_FIX)
         order, number, faces = self.raster_order()
-        uv = np.empty((len(V), len(order), 2))
-        depth = np.empty((len(V), len(order)), np.float32)  # along a ray inside the core, z grows
-        outside, non_finite = project_frames(V, number, self.inv_length, self.r2_step_mm2, self.z_step_mm, self.pixel_map, uv, depth)
+        # per frame and vertex (raster numbering): pixel u, v, depth (along a ray inside the core, z grows), radiance
+        table = np.empty((len(V), len(order), VERTEX_FIELDS))
+        outside, non_finite = project_frames(V, number, e, self.inv_length, self.r2_step_mm2, self.z_step_mm, self.pixel_map, table)
         if non_finite:
             require_finite(V, _VERTICES_WHAT, _VERTICES_FIX)
         if outside:
             self._raise_outside(outside, V * 1e3)
-        return rasterise_direct(uv, depth, faces, e[:, order], self.per_side, self.orientation, self.height_px, self.width_px, self.throughput)
+        return rasterise_direct(table, faces, self.per_side, self.orientation, self.height_px, self.width_px, self.throughput)
 
 
 def direct_raster(sensor_scene, per_side: int = 1) -> DirectRaster:

@@ -147,10 +147,11 @@ def idle_frames(scene, render_result, n_frames: int, start_s: float | None = Non
     H, W = render_result.radiance.shape[1:]
     rng = np.random.default_rng([noise_seed(scene), 0x1D1E, int(stream)])
     out = np.empty((n_frames, H, W, 3), np.uint8)
-    dark = np.zeros((H, W, 3), np.float32)
     for f in range(n_frames):
-        channels = dark if ambient is None or level[f] <= 0 else (level[f] * ambient)[..., None] * k_amb
-        out[f] = camera(channels, rng, noise=scene.camera.noise)
+        if ambient is None or level[f] <= 0:
+            out[f] = camera.dark(rng, noise=scene.camera.noise)  # the same bytes as camera(dark, rng), usually without its draws
+        else:
+            out[f] = camera((level[f] * ambient)[..., None] * k_amb, rng, noise=scene.camera.noise)
     return out
 
 
