@@ -99,6 +99,23 @@ def test_a_dataset_of_another_spec_is_refused(small, tmp_path):
         gen.generate(spec.model_copy(update={"seed": 5}), base, out, progress=False, log=lambda m: None)
 
 
+def test_a_dataset_made_by_other_stage_versions_is_refused(small, tmp_path):
+    """The store records each stage's version; a resume by code whose stages' versions differ would mix two codes'
+    bytes, and is refused naming the stages (a store without the record, made before it, is resumed as before)."""
+    import zarr
+
+    spec, base, out = small
+    root = zarr.open_group(str(out / store.STORE_NAME), mode="r+")
+    versions = dict(root.attrs["stage_versions"])
+    assert versions and "solve" in versions and "camera" in versions
+    try:
+        root.attrs["stage_versions"] = versions | {"solve": "0"}
+        with pytest.raises(store.DatasetMismatch, match=r"other versions of the stages solve \(solve 0 there, "):
+            gen.generate(spec, base, out, progress=False, log=lambda m: None)
+    finally:
+        root.attrs["stage_versions"] = versions
+
+
 def test_stored_episodes_are_complete_and_labelled(small):
     spec, base, out = small
     eps = load_episodes(out, arrays=None)

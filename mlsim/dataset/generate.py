@@ -311,7 +311,9 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     cache = pipeline.Cache(cache_dir, keep=CACHE_KEEP)
     attrs = {"spec": spec.model_dump(mode="json"), "base_scene": base.model_dump(mode="json"), "base_scene_hash": base.content_hash(),
              "people": people, "n_episodes": len(jobs), "actions": list(spec.actions), "class_names": list(ACTIONS),
-             "versions": pipeline.package_versions(), "mesh_key": pipeline.stage_key(base, "mesh")}
+             "versions": pipeline.package_versions(), "mesh_key": pipeline.stage_key(base, "mesh"),
+             # each stage's code version: a resumed dataset refuses another (mlsim.dataset.store.create_or_open)
+             "stage_versions": {name: st.version for name, st in pipeline.stages_of(base).items()}}
     store.create_or_open(out, attrs, spec.content_hash())
     done = store.complete_episodes(out)
     todo = [j for j in jobs if j["episode_id"] not in done]

@@ -2,7 +2,7 @@
 
 Layout of ``DIR/dataset.zarr``::
 
-    dataset.zarr/                 group; attrs: the spec, the base scene, versions, the people
+    dataset.zarr/                 group; attrs: the spec, the base scene, versions (packages, stages), the people
       episodes/                   group
         push_00000/               one episode: arrays (frames x ...) and attrs (labels, seeds, timings)
         ...
@@ -59,7 +59,9 @@ def _partial_dir(root: Path) -> Path:
 
 def create_or_open(out_dir: str | Path, attrs: dict[str, Any], spec_hash: str):
     """The dataset's root group in ``out_dir``: created with ``attrs``, or opened if it was made from
-    the same spec (``spec_hash``). A half-written episode of an interrupted run is removed."""
+    the same spec (``spec_hash``) by the same stages' code (``attrs["stage_versions"]``, where both the store
+    and ``attrs`` have it: a stage's version rises when its bytes may change, and a resumed dataset would
+    mix the two). A half-written episode of an interrupted run is removed."""
     import zarr
 
     out = Path(out_dir)
@@ -71,6 +73,13 @@ def create_or_open(out_dir: str | Path, attrs: dict[str, Any], spec_hash: str):
         if found != spec_hash:
             raise DatasetMismatch(f"{out} holds a dataset of another spec (spec hash {str(found)[:12]}, this spec {spec_hash[:12]}): "
                                   "give a new --out, or delete that directory to regenerate it")
+        stored, now = root.attrs.get("stage_versions"), attrs.get("stage_versions")
+        if stored is not None and now is not None and dict(stored) != dict(now):
+            changed = sorted(k for k in set(stored) | set(now) if stored.get(k) != now.get(k))
+            raise DatasetMismatch(f"{out} was made by other versions of the stages {', '.join(changed)} ("
+                                  + ", ".join(f"{k} {stored.get(k, '-')} there, {now.get(k, '-')} here" for k in changed)
+                                  + "): its episodes and this code's could differ in their bytes; give a new --out, or delete that "
+                                  "directory to regenerate it")
     else:
         root = zarr.open_group(str(path), mode="w")
         root.create_group("episodes")
