@@ -746,8 +746,14 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         if worst["unlinearised"] and log is not None:
             bound = (getattr(kinematics, "max_rounds", contact_admm.SECOND_ORDER_LINEARISATIONS) if second_order
                      else contact_admm.MAX_LINEARISATIONS)
-            why = (f"the rods' rounds (their kinematics' fixed point) or the indenter's gap did not settle in {bound} linearisations"
-                   if second_order else f"the indenter's gap curves more than {bound} linearisations follow")
+            relaxed = getattr(kinematics, "round_relaxation", None) if second_order else None
+            if relaxed is not None:
+                bound = (f"{bound * (1 + contact_admm.ROUND_RELAXATION_HALVINGS)} linearisations (relaxed by {relaxed:g}, then "
+                         f"{contact_admm.ROUND_RELAXATION_HALVINGS} x halved)")
+            else:
+                bound = f"{bound} linearisations"
+            why = (f"the rods' rounds (their kinematics' fixed point) or the indenter's gap did not settle in {bound}"
+                   if second_order else f"the indenter's gap curves more than {bound} follow")
             log(f"warning: in steps {worst['unlinearised']} {why} (the largest gap error is reported per step); "
                 "use more fidelity.solve.substeps")
 
