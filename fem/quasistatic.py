@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from fem import condensed, contact_admm, field_kernels, fields, rod_exact, rod_kinematics, trajectory
+from fem import condensed, contact_admm, field_kernels, fields, rod_error, rod_exact, rod_kinematics, trajectory
 from fem.episode import (  # the shared pieces, here too for fem.quasistatic's callers
     _EPISODE_ARRAYS,
     CONTACT_MAX_ITERATIONS,
@@ -814,15 +814,15 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     np.add.at(rod_force, (slice(None), rod[on_rod]), forces[:, on_rod])
     if exact and kinematics is not None:
         # the Cosserat rods' own: their ends' linear response turned with their tips, the section's mismatch, the rounds'
-        # residual; and the releases of bent rods, where it does not hold (fem.rod_exact)
+        # residual; and the releases of bent rods, where it does not hold (fem.rod_error)
         weights = np.bincount(frame_of[grid.frame_step], minlength=U)
-        estimate = kinematics.force_error_estimate(forces[first], weights, first, round_residual[first])
+        estimate = rod_error.force_error_estimate(kinematics, forces[first], weights, first, round_residual[first])
         timings["geometric_error_estimate"] = estimate.force
         timings["geometric_error_releases"] = [list(r) for r in estimate.releases]
         if log is not None and np.isfinite(estimate.force):
             where = sorted({s for s, _ in estimate.releases})
             log(f"the {settings.tier} tier's Cosserat rods: per-rod contact forces estimated {estimate.force:.1%} off the nonlinear tier's "
-                "(fem.rod_exact.CosseratKinematics.force_error_estimate)"
+                "(fem.rod_error.force_error_estimate)"
                 + (f"; it does not hold here: bent rods are let go in steps {where} (rods {sorted({r for _, r in estimate.releases})}) and "
                    "snap back at a step that depends on which frictional equilibrium held them (the default demo's lift-off 10-18 %, "
                    'a swipe over 12 mm rods 14-22 % off in those frames); compare with fidelity.solve.tier = "nonlinear" there'

@@ -74,20 +74,23 @@ load and the roots turn under it. The base has no inertia. The tiny scene's rods
 nonlinear tier's dynamics: 3.3 / 2.7 / 2.0 % over the frames, the tips' history after the release 9.9 %
 (tests/test_rod_exact.py).
 
-Its own error estimate (:meth:`CosseratKinematics.force_error_estimate`, the run log's and ``summary.json``'s
+Its own error estimate (:func:`fem.rod_error.force_error_estimate`, the run log's and ``summary.json``'s
 ``geometric_error_estimate``): the rods' ends' linear response turned with their tips, the section's mismatch with the
 mesh's rod and the rounds' residual, through each rod's secant stiffness; and the releases of bent rods, where it does
 not hold (docs/stages/solve.md).
 
 What this is not: a finite-strain body; the base is linear.
+
+About 690 lines: the rods' batched solve, the contact rounds' interface (q, the P-delta load, the hold) and the
+fields' corrections (vertices, Saint-Venant's stresses) all read the same per-rod padded points, attachments, unit
+responses and answers that :class:`CosseratKinematics` keeps; the error estimate, which only reads them, is
+:mod:`fem.rod_error`.
 Tiny scene's press and slide against the nonlinear tier (docs/stages/solve.md): 2.0 / 2.3 / 2.0 %
 on rod-base von Mises, per-rod force and tip displacement on the tests' shipped mesh (tests/test_rod_exact.py;
 3.9 / 6.0 / 5.5 % on another mesh realisation of the scene at stage 17).
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -96,7 +99,7 @@ from fem import cosserat_dynamics as cd
 from fem import cosserat_rod as cr
 from fem.rod_kinematics import RodSections, _face_rotation_rows, resultant_change
 
-__all__ = ["SEGMENTS", "RELEASE_SIDEWAYS", "layered_section", "root_observation", "attachments", "ErrorEstimate", "CosseratKinematics"]
+__all__ = ["SEGMENTS", "layered_section", "root_observation", "attachments", "CosseratKinematics"]
 
 #: the rods' axial law: the nonlinear tier's material is neo-Hookean, and the default demo's flat punch
 #: compresses the rods by about 11 %, where that law is 12.9 % stiffer than the linear one
@@ -192,21 +195,6 @@ def _rotation_quaternion(theta: np.ndarray) -> np.ndarray:
     return np.concatenate([np.cos(half), factor * theta], axis=-1)
 
 
-#: a rod whose tip had moved sideways by more than this fraction of its length and whose force then falls by half
-#: is a release of a bent rod (:meth:`CosseratKinematics.force_error_estimate`): it snaps back, at a step that
-#: depends on which frictional equilibrium held it
-RELEASE_SIDEWAYS = 0.1
-
-
-@dataclass(frozen=True)
-class ErrorEstimate:
-    """:meth:`CosseratKinematics.force_error_estimate`'s answer: the estimated relative error of the per-rod contact
-    forces, and the releases of bent rods (step, mesh rod), where it does not hold."""
-
-    force: float
-    releases: list
-
-
 class CosseratKinematics:
     """The per-episode operators of the geometrically exact rod kinematics (the interface of
     :class:`fem.rod_kinematics.RodKinematics`, which the contact loop and the tiers call).
@@ -240,7 +228,7 @@ class CosseratKinematics:
     REST_SPEED_M_S = 1e-6
     #: the linear body's compliance among a rod's points (a callable: point indices (k,) -> (3 k, 3 k) m/N,
     #: :meth:`fem.contact_admm._Delassus.elastic_block`), set by fem.quasistatic with the contact operator: the
-    #: error estimate's (:meth:`force_error_estimate`). None: no estimate
+    #: error estimate's (:func:`fem.rod_error.force_error_estimate`). None: no estimate
     local_compliance = None
 
     def __init__(self, sections: RodSections, section: cr.RodSection, A: np.ndarray, obs_0: np.ndarray, X: np.ndarray, point_rod: np.ndarray,
@@ -286,7 +274,7 @@ class CosseratKinematics:
         # release carries no force, so its answers are not a function of the forces)
         self._motion: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._by_step: dict[int, list] = {}
-        self._local: dict[int, np.ndarray] = {}  # rod -> its local compliance (3 k, 3 k) m/N (_local_block)
+        self._local: dict[int, np.ndarray] = {}  # rod -> its local compliance (3 k, 3 k) m/N (fem.rod_error.local_block)
         # guard(f): raises where the forces f (m, 3) N load a rod past what dead loads can follow (the tier's
         # buckling check, fem.quasistatic._check_buckling), before any rod is solved under them
         self.guard = None
@@ -597,120 +585,6 @@ class CosseratKinematics:
 
     def q(self, f: np.ndarray) -> np.ndarray:
         return self.q_and_load(f)[0]
-
-    # --- the tier's own error estimate ----------------------------------------------------------------
-
-    def _local_block(self, j: int) -> np.ndarray:
-        """Rod j's local compliance L (3 k, 3 k) m/N among its k points: the linear body's (``local_compliance``)
-        less its root's motion and the straight Cosserat rod's linear response. What is left is the part of the
-        FEM rod's response that the tier keeps unturned: the tip pad's indentation and warping (on the tiny
-        scene's 2.5 mm mesh the tip face's axial compliance is 3.5 x the section's) and the 3-D rod's compliance
-        beyond the section model's (its lateral tip compliance 3-8 % above it there)."""
-        if j not in self._local:
-            pts = self._points[j]
-            k = len(pts)
-            E = np.asarray(self.local_compliance(pts), dtype=float)
-            cols = (3 * pts[:, None] + np.arange(3)).ravel()
-            Aj = self.A[6 * j : 6 * j + 6][:, cols]
-            Y = self.X[pts] - self.root_X[j]
-            # the root's translation and turn carried to each point: u_r - Y x theta_r
-            skew = np.zeros((k, 3, 3))
-            skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Y[:, 2], Y[:, 1], -Y[:, 0]
-            skew -= np.transpose(skew, (0, 2, 1))
-            root = (Aj[None, :3] - skew @ Aj[None, 3:]).reshape(3 * k, 3 * k)
-            segment, along, offset = self._attach[j]
-            D = self._responses[j][0].T.reshape(3 * k, -1, 6)  # (unit load, segment, dofs)
-            node = np.concatenate([np.zeros((3 * k, 1, 3)), D[:, :, 3:]], axis=1)
-            placed = ((1.0 - along)[None, :, None] * node[:, segment] + along[None, :, None] * node[:, segment + 1]
-                      + np.cross(D[:, segment, :3], offset[None]))
-            self._local[j] = E - root - placed.reshape(3 * k, 3 * k).T
-        return self._local[j]
-
-    def _section_mismatch(self, j: int) -> float:
-        """|FEM rod / section model - 1| of rod j's lateral tip compliance: the mean sideways displacement of its tip face
-        under a sideways force spread evenly on the face's points, by the linear body (the straight Cosserat rod's
-        plus :meth:`_local_block`'s) against the straight Cosserat rod's, the larger of x and y. 0 without a tip face."""
-        pts = self._points[j]
-        tip_z = self.sections.base_z_m + self.sections.length_m
-        face = np.flatnonzero(self.X[pts, 2] >= tip_z - 1e-7)
-        if len(face) < 3:
-            return 0.0
-        L = self._local_block(j)
-        segment, along, offset = self._attach[j]
-        out = 0.0
-        for c in range(2):
-            g = np.zeros((len(pts), 3))
-            g[face, c] = 1.0 / len(face)
-            straight = self._linear_positions(self._linear_dofs(j, g), segment, along, offset)[face, c].mean()
-            extra = (L @ g.ravel()).reshape(-1, 3)[face, c].mean()
-            out = max(out, abs(extra / straight)) if straight > 0.0 else out
-        return float(out)
-
-    def force_error_estimate(self, forces: np.ndarray, weights: np.ndarray, steps=None, round_residual_n=None) -> "ErrorEstimate":
-        """The tier's own estimate of its per-rod contact forces' relative error against the nonlinear tier's
-        (Frobenius over steps and rods, :mod:`mlsim.studies.accuracy`'s measure), from the episode's answers, and
-        the releases of bent rods, where it does not hold.
-
-        Per loaded rod and distinct load, three terms the tier leaves out, each a misplacement delta of the rod's
-        points (force-weighted mean) turned into force through the rod's secant stiffness |F| / |c| (c the tip's
-        displacement in the bent rod), summed in squares:
-
-        - the linear body's local response of the rod (:meth:`_local_block`: the tip pad and the 3-D rod beyond
-          the section model), which the tier keeps in the rest frame, turned with the tip: R L R^T f - L f (the
-          corotational split of Felippa and Haugen 2005, for the rod's end);
-        - the section model's small-load mismatch with the FEM rod (:meth:`_section_mismatch`) times the rod's
-          nonlinear part q;
-        - what the contact's rounds had left to move (``round_residual_n`` (U,) N, their fixed point's residual).
-
-        A linearisation of what is left out, not a bound. It does not see which frictional equilibrium the contact
-        lands on: a bent rod let go by the indenter snaps back at a step the tier and the reference need not share
-        (a rim dragging rods over, a lift-off); those releases are returned, and the estimate does not hold for an
-        episode that has them. Measured against the nonlinear tier (docs/stages/solve.md, 2026-11-29): the tiny
-        scene's flat press 2.1 % estimated / 1.7 % measured, its sphere press 1.4 / 4.5 % (this mesh realisation's
-        section against the coarse reference: 2.3 % on another); with releases, the default demo 11.3 / 5.8 % and
-        a 3 x 3 swipe over 12 mm rods 1.5-4.3 / 14-22 %.
-
-        forces (U, m, 3) N at the distinct loads in step order, weights (U,) their frames, steps (U,) their step
-        indices. NaN without ``local_compliance``."""
-        if self.local_compliance is None:
-            return ErrorEstimate(float("nan"), [])
-        forces = np.asarray(forces, dtype=float)
-        steps = list(range(len(forces))) if steps is None else [int(s) for s in steps]
-        num = den = 0.0
-        tip = np.array([0.0, 0.0, self.sections.length_m])
-        on = self.point_rod >= 0
-        releases, last = [], {}  # last: rod -> (|F| N, sideways tip travel m) at the last distinct load
-        for i, f in enumerate(forces):
-            w = float(weights[i])
-            F_all = np.zeros((len(self._points), 3))
-            np.add.at(F_all, self.point_rod[on], f[on])
-            size_rod = np.linalg.norm(F_all, axis=1)
-            for j, (F_was, side) in last.items():
-                if side > RELEASE_SIDEWAYS * self.sections.length_m and size_rod[j] < 0.5 * F_was:
-                    releases.append((steps[i], int(self.sections.rods[j])))
-            last = {}
-            den += w * float(np.sum(F_all**2))
-            if round_residual_n is not None:
-                num += w * float(round_residual_n[i]) ** 2
-            if not np.any(f):
-                continue
-            for j, state, u_r, th_r, _, d_lin, _ in self._answers(f, step=steps[i] if self.inertia is not None else None):
-                pts = self._points[j]
-                fj = f[pts]
-                size = np.linalg.norm(fj, axis=1)
-                bend = state.x[-1] - self.root_X[j] - tip
-                c = float(np.linalg.norm(bend))
-                if not size.sum() > 0.0 or not c > 0.0:
-                    continue
-                last[j] = (size_rod[j], float(np.linalg.norm(bend[:2])))
-                share = size / size.sum()
-                R = cr.rotation_matrix(state.q[-1])
-                L = self._local_block(j)
-                turned = (L @ (fj @ R).ravel()).reshape(-1, 3) @ R.T - (L @ fj.ravel()).reshape(-1, 3)
-                q = self._nonlinear_part(j, state, u_r, th_r, d_lin, self.X[pts])
-                delta_sq = float(np.sum((share @ turned) ** 2)) + (self._section_mismatch(j) * float(np.linalg.norm(share @ q))) ** 2
-                num += w * size_rod[j] ** 2 * delta_sq / c**2
-        return ErrorEstimate(float(np.sqrt(num / den)) if den > 0.0 else 0.0, releases)
 
     def vertex_correction(self, U: np.ndarray, points: np.ndarray, forces: np.ndarray | None = None, step: int | None = None) -> np.ndarray:
         """The nonlinear part (P, 3) m of the rods' vertex displacements at point forces ``forces`` (m, 3) N

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from fem import condensed
 from fem import cosserat_rod as cr
 from fem import quasistatic as qs
+from fem import rod_error
 from fem import rod_exact as rx
 from fem import rod_kinematics as rk
 
@@ -119,23 +120,23 @@ def test_the_pdelta_load_carries_the_bent_rods_extra_root_moment(rod0):
 
 
 def test_the_error_estimate_is_first_order_in_the_load_and_sees_no_release(rod0):
-    """The tier's own estimate (:meth:`fem.rod_exact.CosseratKinematics.force_error_estimate`) is of terms quadratic in
+    """The tier's own estimate (:func:`fem.rod_error.force_error_estimate`) is of terms quadratic in
     the load (the rod's end turned with its tip, the section's mismatch times the nonlinear part), so relative to the
     force it is first order: a tenth of the load, a tenth of the estimate (to the rotation's next order). Without the
     body's local compliance it is NaN; a rod that stays loaded is no release."""
     kin, points, C, f = rod0
-    assert np.isnan(kin.force_error_estimate(f[None], np.ones(1)).force)
+    assert np.isnan(rod_error.force_error_estimate(kin, f[None], np.ones(1)).force)
     cols = lambda p: (3 * np.asarray(p)[:, None] + np.arange(3)).ravel()  # noqa: E731
     kin.local_compliance = lambda p: C[np.ix_(cols(p), cols(p))]
     try:
-        big, small = (kin.force_error_estimate(s * f[None], np.ones(1)) for s in (2.0, 0.2))
+        big, small = (rod_error.force_error_estimate(kin, s * f[None], np.ones(1)) for s in (2.0, 0.2))
         assert big.force > 0.0 and abs(small.force / big.force - 0.1) <= 0.005, (small, big)  # measured 0.1003
-        both = kin.force_error_estimate(np.stack([2.0 * f, 1.5 * f]), np.ones(2))
+        both = rod_error.force_error_estimate(kin, np.stack([2.0 * f, 1.5 * f]), np.ones(2))
         assert both.releases == []
         # let go after a bend of 1.6 % of the rod's length: no release below RELEASE_SIDEWAYS; 10 x the load, one
-        let_go = kin.force_error_estimate(np.stack([20.0 * f, np.zeros_like(f)]), np.ones(2))
+        let_go = rod_error.force_error_estimate(kin, np.stack([20.0 * f, np.zeros_like(f)]), np.ones(2))
         assert let_go.releases == [(1, int(kin.sections.rods[0]))], let_go
-        assert kin.force_error_estimate(np.stack([2.0 * f, np.zeros_like(f)]), np.ones(2)).releases == []
+        assert rod_error.force_error_estimate(kin, np.stack([2.0 * f, np.zeros_like(f)]), np.ones(2)).releases == []
     finally:
         kin.local_compliance = None
 
@@ -174,7 +175,7 @@ def test_the_tiny_press_and_slide_within_5_percent_of_the_nonlinear_tier(tiny_me
         assert err["rod_base_von_mises"] <= 0.05, (tier, err)
         assert err["rod_contact_force"] <= 0.05, (tier, err)
         assert err["tip_displacement"] <= 0.05, (tier, err)
-        # the tier's own estimate (fem.rod_exact.CosseratKinematics.force_error_estimate) within a factor of 4 of the
+        # the tier's own estimate (fem.rod_error.force_error_estimate) within a factor of 4 of the
         # measured force error (measured on the shipped mesh: 1.3-1.4 % estimated / 2.1-2.3 % measured), no bent rod let go
         est = estimates[tier]
         assert 0.25 * err["rod_contact_force"] <= est["geometric_error_estimate"] <= 4.0 * err["rod_contact_force"], (tier, est, err)

@@ -52,7 +52,7 @@ def rows(records: list[dict], varies, load_names: list[str]) -> list[dict]:
             row[f"{name}_sf_strain"] = r.get("safety_factor_strain")
             row[f"{name}_tears"] = r.get("tears")
             row[f"{name}_force_err_est"] = r.get("solve_error_estimate")  # the fast tiers' own estimate (fem.quasistatic)
-            # Cosserat rods: bent rods let go (fem.rod_exact.CosseratKinematics.force_error_estimate), where the estimate does not hold
+            # Cosserat rods: bent rods let go (fem.rod_error.force_error_estimate), where the estimate does not hold
             releases = r.get("solve_error_releases")
             row[f"{name}_releases"] = None if releases is None else len(releases)
             # which tier answered each load; "nonlinear<linear": the linear tier refused it as beyond its model

@@ -1,0 +1,147 @@
+"""The Cosserat rod tiers' own error estimate (``fidelity.solve.rod_kinematics = "cosserat"``, :mod:`fem.rod_exact`).
+
+An a posteriori estimate of the per-rod contact force error of the linear and reduced tiers' geometrically exact rods
+against the nonlinear tier (:func:`force_error_estimate`): what the tier leaves out, linearised, from the episode's
+own answers; and the releases of bent rods, where such an estimate does not hold (a snap-back's step depends on
+which frictional equilibrium held the rod). Measured against the nonlinear tier in docs/stages/solve.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fem.cosserat_rod import rotation_matrix
+from fem.rod_exact import CosseratKinematics
+
+__all__ = ["RELEASE_SIDEWAYS", "ErrorEstimate", "local_block", "section_mismatch", "force_error_estimate"]
+
+#: a rod whose tip had moved sideways by more than this fraction of its length and whose force then falls by half
+#: is a release of a bent rod (:func:`force_error_estimate`): it snaps back, at a step that depends on which
+#: frictional equilibrium held it
+RELEASE_SIDEWAYS = 0.1
+
+
+@dataclass(frozen=True)
+class ErrorEstimate:
+    """:func:`force_error_estimate`'s answer: the estimated relative error of the per-rod contact forces, and the
+    releases of bent rods (step, mesh rod), where it does not hold."""
+
+    force: float
+    releases: list
+
+
+def local_block(kin: CosseratKinematics, j: int) -> np.ndarray:
+    """Rod j's local compliance L (3 k, 3 k) m/N among its k points: the linear body's (``local_compliance``)
+    less its root's motion and the straight Cosserat rod's linear response. What is left is the part of the
+    FEM rod's response that the tier keeps unturned: the tip pad's indentation and warping (on the tiny
+    scene's 2.5 mm mesh the tip face's axial compliance is 3.5 x the section's) and the 3-D rod's compliance
+    beyond the section model's (its lateral tip compliance 3-8 % above it there)."""
+    if j not in kin._local:
+        pts = kin._points[j]
+        k = len(pts)
+        E = np.asarray(kin.local_compliance(pts), dtype=float)
+        cols = (3 * pts[:, None] + np.arange(3)).ravel()
+        Aj = kin.A[6 * j : 6 * j + 6][:, cols]
+        Y = kin.X[pts] - kin.root_X[j]
+        # the root's translation and turn carried to each point: u_r - Y x theta_r
+        skew = np.zeros((k, 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Y[:, 2], Y[:, 1], -Y[:, 0]
+        skew -= np.transpose(skew, (0, 2, 1))
+        root = (Aj[None, :3] - skew @ Aj[None, 3:]).reshape(3 * k, 3 * k)
+        segment, along, offset = kin._attach[j]
+        D = kin._responses[j][0].T.reshape(3 * k, -1, 6)  # (unit load, segment, dofs)
+        node = np.concatenate([np.zeros((3 * k, 1, 3)), D[:, :, 3:]], axis=1)
+        placed = ((1.0 - along)[None, :, None] * node[:, segment] + along[None, :, None] * node[:, segment + 1]
+                  + np.cross(D[:, segment, :3], offset[None]))
+        kin._local[j] = E - root - placed.reshape(3 * k, 3 * k).T
+    return kin._local[j]
+
+
+def section_mismatch(kin: CosseratKinematics, j: int) -> float:
+    """|FEM rod / section model - 1| of rod j's lateral tip compliance: the mean sideways displacement of its tip face
+    under a sideways force spread evenly on the face's points, by the linear body (the straight Cosserat rod's
+    plus :func:`local_block`'s) against the straight Cosserat rod's, the larger of x and y. 0 without a tip face."""
+    pts = kin._points[j]
+    tip_z = kin.sections.base_z_m + kin.sections.length_m
+    face = np.flatnonzero(kin.X[pts, 2] >= tip_z - 1e-7)
+    if len(face) < 3:
+        return 0.0
+    L = local_block(kin, j)
+    segment, along, offset = kin._attach[j]
+    out = 0.0
+    for c in range(2):
+        g = np.zeros((len(pts), 3))
+        g[face, c] = 1.0 / len(face)
+        straight = kin._linear_positions(kin._linear_dofs(j, g), segment, along, offset)[face, c].mean()
+        extra = (L @ g.ravel()).reshape(-1, 3)[face, c].mean()
+        out = max(out, abs(extra / straight)) if straight > 0.0 else out
+    return float(out)
+
+
+def force_error_estimate(kin: CosseratKinematics, forces: np.ndarray, weights: np.ndarray, steps=None, round_residual_n=None) -> ErrorEstimate:
+    """The tier's own estimate of its per-rod contact forces' relative error against the nonlinear tier's
+    (Frobenius over steps and rods, :mod:`mlsim.studies.accuracy`'s measure), from the episode's answers, and
+    the releases of bent rods, where it does not hold.
+
+    Per loaded rod and distinct load, three terms the tier leaves out, each a misplacement delta of the rod's
+    points (force-weighted mean) turned into force through the rod's secant stiffness |F| / |c| (c the tip's
+    displacement in the bent rod), summed in squares:
+
+    - the linear body's local response of the rod (:func:`local_block`: the tip pad and the 3-D rod beyond
+      the section model), which the tier keeps in the rest frame, turned with the tip: R L R^T f - L f (the
+      corotational split of Felippa and Haugen 2005, for the rod's end);
+    - the section model's small-load mismatch with the FEM rod (:func:`section_mismatch`) times the rod's
+      nonlinear part q;
+    - what the contact's rounds had left to move (``round_residual_n`` (U,) N, their fixed point's residual).
+
+    A linearisation of what is left out, not a bound. It does not see which frictional equilibrium the contact
+    lands on: a bent rod let go by the indenter snaps back at a step the tier and the reference need not share
+    (a rim dragging rods over, a lift-off); those releases are returned, and the estimate does not hold for an
+    episode that has them. Measured against the nonlinear tier (docs/stages/solve.md, 2026-11-29): the tiny
+    scene's flat press 2.1 % estimated / 1.7 % measured, its sphere press 1.4 / 4.5 % (this mesh realisation's
+    section against the coarse reference: 2.3 % on another); with releases, the default demo 11.3 / 5.8 % and
+    a 3 x 3 swipe over 12 mm rods 1.5-4.3 / 14-22 %.
+
+    forces (U, m, 3) N at the distinct loads in step order, weights (U,) their frames, steps (U,) their step
+    indices. NaN without ``local_compliance``."""
+    if kin.local_compliance is None:
+        return ErrorEstimate(float("nan"), [])
+    forces = np.asarray(forces, dtype=float)
+    steps = list(range(len(forces))) if steps is None else [int(s) for s in steps]
+    num = den = 0.0
+    tip = np.array([0.0, 0.0, kin.sections.length_m])
+    on = kin.point_rod >= 0
+    releases, last = [], {}  # last: rod -> (|F| N, sideways tip travel m) at the last distinct load
+    for i, f in enumerate(forces):
+        w = float(weights[i])
+        F_all = np.zeros((len(kin._points), 3))
+        np.add.at(F_all, kin.point_rod[on], f[on])
+        size_rod = np.linalg.norm(F_all, axis=1)
+        for j, (F_was, side) in last.items():
+            if side > RELEASE_SIDEWAYS * kin.sections.length_m and size_rod[j] < 0.5 * F_was:
+                releases.append((steps[i], int(kin.sections.rods[j])))
+        last = {}
+        den += w * float(np.sum(F_all**2))
+        if round_residual_n is not None:
+            num += w * float(round_residual_n[i]) ** 2
+        if not np.any(f):
+            continue
+        for j, state, u_r, th_r, _, d_lin, _ in kin._answers(f, step=steps[i] if kin.inertia is not None else None):
+            pts = kin._points[j]
+            fj = f[pts]
+            size = np.linalg.norm(fj, axis=1)
+            bend = state.x[-1] - kin.root_X[j] - tip
+            c = float(np.linalg.norm(bend))
+            if not size.sum() > 0.0 or not c > 0.0:
+                continue
+            last[j] = (size_rod[j], float(np.linalg.norm(bend[:2])))
+            share = size / size.sum()
+            R = rotation_matrix(state.q[-1])
+            L = local_block(kin, j)
+            turned = (L @ (fj @ R).ravel()).reshape(-1, 3) @ R.T - (L @ fj.ravel()).reshape(-1, 3)
+            q = kin._nonlinear_part(j, state, u_r, th_r, d_lin, kin.X[pts])
+            delta_sq = float(np.sum((share @ turned) ** 2)) + (section_mismatch(kin, j) * float(np.linalg.norm(share @ q))) ** 2
+            num += w * size_rod[j] ** 2 * delta_sq / c**2
+    return ErrorEstimate(float(np.sqrt(num / den)) if den > 0.0 else 0.0, releases)
