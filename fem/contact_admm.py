@@ -475,7 +475,6 @@ class AdmmInfo:
     gap_error_m: float = 0.0  # the last linearisation's largest gap error at a loaded point
     linearised: bool = True  # False: max_linearisations were not enough for the gap's curvature
     round_residual_n: float = 0.0  # rod kinematics: the rounds' fixed-point residual at the last one (N, summed per rod)
-    relaxation_halvings: int = 0  # rod kinematics: how often the rounds' relaxation was halved for not settling
     history: list = field(default_factory=list)
 
 
@@ -775,7 +774,6 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
             break
         if relaxation is not None and (lin + 1) % rounds == 0:
             relaxation *= 0.5
-            info.relaxation_halvings += 1
     else:
         info.converged = info.linearised = False
     extra = None

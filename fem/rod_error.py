@@ -50,11 +50,9 @@ def local_block(kin: CosseratKinematics, j: int) -> np.ndarray:
         skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Y[:, 2], Y[:, 1], -Y[:, 0]
         skew -= np.transpose(skew, (0, 2, 1))
         root = (Aj[None, :3] - skew @ Aj[None, 3:]).reshape(3 * k, 3 * k)
-        segment, along, offset = kin._attach[j]
-        D = kin._responses[j][0].T.reshape(3 * k, -1, 6)  # (unit load, segment, dofs)
-        node = np.concatenate([np.zeros((3 * k, 1, 3)), D[:, :, 3:]], axis=1)
-        placed = ((1.0 - along)[None, :, None] * node[:, segment] + along[None, :, None] * node[:, segment + 1]
-                  + np.cross(D[:, segment, :3], offset[None]))
+        # the straight rod's linear response at the points to each unit point load (one batch row per load)
+        segment, along, offset = (np.broadcast_to(a, (3 * k,) + a.shape) for a in kin._attach[j])
+        placed = kin._linear_positions_batch(kin._responses[j][0].T, segment, along, offset)
         kin._local[j] = E - root - placed.reshape(3 * k, 3 * k).T
     return kin._local[j]
 
@@ -114,6 +112,7 @@ def force_error_estimate(kin: CosseratKinematics, forces: np.ndarray, weights: n
     tip = np.array([0.0, 0.0, kin.sections.length_m])
     on = kin.point_rod >= 0
     releases, last = [], {}  # last: rod -> (|F| N, sideways tip travel m) at the last distinct load
+    mismatch = {}  # rod -> section_mismatch, a property of the rod and the mesh
     for i, f in enumerate(forces):
         w = float(weights[i])
         F_all = np.zeros((len(kin._points), 3))
@@ -142,6 +141,8 @@ def force_error_estimate(kin: CosseratKinematics, forces: np.ndarray, weights: n
             L = local_block(kin, j)
             turned = (L @ (fj @ R).ravel()).reshape(-1, 3) @ R.T - (L @ fj.ravel()).reshape(-1, 3)
             q = kin._nonlinear_part(j, state, u_r, th_r, d_lin, kin.X[pts])
-            delta_sq = float(np.sum((share @ turned) ** 2)) + (section_mismatch(kin, j) * float(np.linalg.norm(share @ q))) ** 2
+            if j not in mismatch:
+                mismatch[j] = section_mismatch(kin, j)
+            delta_sq = float(np.sum((share @ turned) ** 2)) + (mismatch[j] * float(np.linalg.norm(share @ q))) ** 2
             num += w * size_rod[j] ** 2 * delta_sq / c**2
     return ErrorEstimate(float(np.sqrt(num / den)) if den > 0.0 else 0.0, releases)

@@ -320,10 +320,7 @@ class CosseratKinematics:
     @staticmethod
     def _linear_positions(d: np.ndarray, segment: np.ndarray, along: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """The displacement (k, 3) of attached points for the linear dofs d (6 N,) of a rod clamped at the origin."""
-        blocks = d.reshape(-1, 6)
-        node = np.concatenate([np.zeros((1, 3)), blocks[:, 3:]])  # x_0 .. x_N
-        psi = blocks[segment, :3]
-        return (1.0 - along)[:, None] * node[segment] + along[:, None] * node[segment + 1] + np.cross(psi, offset)
+        return CosseratKinematics._linear_positions_batch(d[None], segment[None], along[None], offset[None])[0]
 
     def _linear_dofs_batch(self, rows: np.ndarray, forces: np.ndarray, tip_loads: np.ndarray | None = None) -> np.ndarray:
         """:meth:`_linear_dofs` of the rods ``rows`` (B,) at once: forces (B, K, 3) N on their padded points, tip_loads
@@ -336,7 +333,9 @@ class CosseratKinematics:
 
     @staticmethod
     def _linear_positions_batch(d: np.ndarray, segment: np.ndarray, along: np.ndarray, offset: np.ndarray) -> np.ndarray:
-        """:meth:`_linear_positions` of a batch: d (B, 6 N), segment, along (B, K), offset (B, K, 3); (B, K, 3) m."""
+        """The displacement (B, K, 3) m of attached points for the linear dofs d (B, 6 N) of rods clamped at the origin
+        (segment, along (B, K), offset (B, K, 3)): the nodes' moves interpolated along the chord, the frame's turn
+        psi x offset."""
         blocks = d.reshape(len(d), -1, 6)
         node = np.concatenate([np.zeros((len(d), 1, 3)), blocks[:, :, 3:]], axis=1)  # x_0 .. x_N
         e = segment[..., None]
