@@ -172,7 +172,7 @@ def cmd_accuracy(args) -> int:
         print(f"{r.edge_length_mm:>8g} {r.element_order:>5} {r.tier:>9} {r.n_tets:>7} {r.per_frame_ms:>9.1f} {r.precompute_s:>7.1f} {errs} {est}"
               + ("   (reference)" if r.reference else ""))
     print(f"(* = on the Pareto front; force est. = the fast tiers' own estimate of their per-rod contact force error: from the "
-          f"rods' bending, or with Cosserat rods from their ends turned with their tips, fem.rod_exact)  wrote "
+          f"rods' bending, or with Cosserat rods from their ends turned with their tips, fem.rod_error)  wrote "
           f"{out_dir / 'accuracy_solve.csv'}, .json, .png")
     return EXIT_OK
 

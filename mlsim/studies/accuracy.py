@@ -98,7 +98,7 @@ class Row:
     errors: dict = field(default_factory=dict)
     failed: str = ""
     reference: bool = False
-    # the fast tiers' own estimate of their per-rod contact force error (fem.quasistatic; with Cosserat rods fem.rod_exact)
+    # the fast tiers' own estimate of their per-rod contact force error (fem.quasistatic; with Cosserat rods fem.rod_error)
     # (fem.quasistatic.geometric_error_estimate), next to the measured one
     estimated_force_error: float = float("nan")
 

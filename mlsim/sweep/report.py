@@ -150,7 +150,7 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
            "calibration frame's darkest gap between neighbouring disks (0 merged, 1 black). beam_strain_per_n: SPEC 1.3's "
            "cantilever sensitivity 4 L / (pi r^3 E). tiers: solve/render per load (nonlinear+be<linear: the linear tier refused the load as beyond its model, the nonlinear tier answered it with backward-Euler dynamics); force_err_est: the fast tiers' own estimate of "
            "their per-rod contact force error (fem.quasistatic: first-order kinematics from the rods' bending; Cosserat rods from "
-           "their ends' response turned with their tips, fem.rod_exact; none with second-order rod kinematics); releases: with "
+           "their ends' response turned with their tips, fem.rod_error; none with second-order rod kinematics); releases: with "
            "Cosserat rods, how many times a bent rod was let go (it snaps back at a step that depends on its frictional equilibrium: "
            "where above 0 the estimate does not hold); the deformed render tier is within 1 % per rod of path tracing (`mlsim accuracy --stage render`)."]
     files.append(out / "sweep.md")
