@@ -263,15 +263,17 @@ def solve_points(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, gue
 
 
 def _admm_points(u0, X, shape, pose, pose_old, state, friction, k_n, k_t, guess=None, delassus=None, warm=None,
-                 case: str = "contact step", max_iterations: int = 200, admm_rtol: float = 1e-4, **ignored):
+                 case: str = "contact step", max_iterations: int = 200, admm_rtol: float = 1e-4, relaxation_halvings: int | None = None,
+                 **ignored):
     """:func:`fem.contact_admm.solve_step` with the arguments and returns of :func:`_newton_points`.
     The penalty is isotropic (k_t = k_n)."""
     from fem import contact_admm
 
     if not np.allclose(k_t, k_n):
         raise ValueError("the ADMM contact solver needs one isotropic penalty per point (k_t = k_n)")
+    halvings = {} if relaxation_halvings is None else {"relaxation_halvings": relaxation_halvings}
     u, law, info = contact_admm.solve_step(delassus, u0, X, shape, pose, pose_old, state, friction, k_n, warm, guess, rtol=admm_rtol,
-                                           max_iterations=max_iterations)
+                                           max_iterations=max_iterations, **halvings)
     if not np.all(np.isfinite(u)):
         raise SolverError(f"{case}: NaN or Inf in the contact solution")
     return u, law, {"iterations": info.iterations, "kicks": 0, "residuals_m": [], "f": law.f, "admm": info}
@@ -374,8 +376,12 @@ def _block_diag_csr(blocks: np.ndarray) -> sp.csr_matrix:
     return sp.csr_matrix((blocks.ravel(), (rows, cols)), shape=(3 * k, 3 * k))
 
 
+#: held Cosserat rods: how many levels of halves a step whose rounds did not settle is cut into (solve_path)
+UNSETTLED_CUTS = 2
+
+
 def solve_path(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case: str = "contact step", max_depth: int = 8,
-               max_penetration_m: float | None = None, max_jump_m: float | None = None, **kw):
+               max_penetration_m: float | None = None, max_jump_m: float | None = None, unsettled_cuts: int | None = None, **kw):
     """:func:`solve_points` from ``pose_old`` to ``pose``; the move is split in halves
     (:func:`fem.continuation.solve_with_halving`, ``max_depth`` times: down to 1/256 of it), each
     solved from the last, when
@@ -384,17 +390,36 @@ def solve_path(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case:
       (before they respond): a larger jump can carry a thin indenter past a point, which the penalty
       then pushes out of the far side (tunnelling that no converged state shows);
     - the solve fails, or a point ends deeper in the indenter than ``max_penetration_m`` (at the
-      last depth: a :class:`SolverError`).
+      last depth: a :class:`SolverError`);
+    - held Cosserat rods' rounds (:mod:`fem.rod_exact`) did not settle in their first budget, at most
+      ``unsettled_cuts`` levels deep (default UNSETTLED_CUTS); only the last level's solves go on at half
+      their relaxation (:data:`fem.contact_admm.ROUND_RELAXATION_HALVINGS`).
 
     Returns (u, law, info) with the total iterations and the number of cuts in info."""
     from fem.continuation import solve_with_halving
 
     guess = kw.pop("guess", None)
+    warm = kw.get("warm")
+    # held Cosserat rods (fem.rod_exact): a step whose rounds do not settle in their first budget is cut in halves
+    # (UNSETTLED_CUTS levels) before the rounds' relaxation is halved: the default demo's lift-off step, where rods are
+    # let go, cycled for 180 rounds (13 s of its 18 s of contact) and did not settle; its halves settle
+    held = kw.get("delassus") is not None and warm is not None and getattr(warm.kinematics, "round_relaxation", None) is not None
+    starts = {}  # per move's start pose: the warm start its first solve had (a cut's first half starts there again)
 
-    def step(p_old, p, st, whole):
-        u, law, info = solve_points(C, u0, X, shape, p, p_old, st, friction, k_n, k_t, case=case, guess=guess if whole else None, **kw)
+    def step(p_old, p, st, whole, final=True):
+        extra = {} if final else {"relaxation_halvings": 0}
+        if held:
+            if id(p_old) in starts:
+                warm.restart_from(starts[id(p_old)][1])
+            else:
+                starts[id(p_old)] = (p_old, warm.starting_point())  # (the pose kept: its id stays its own)
+        u, law, info = solve_points(C, u0, X, shape, p, p_old, st, friction, k_n, k_t, case=case, guess=guess if whole else None, **kw, **extra)
         info.setdefault("cuts", 0)
         return u, law, info
+
+    def unsettled(result):
+        a = result[2].get("admm")
+        return a is not None and not a.linearised
 
     def jumps(p, st):
         return max_jump_m is not None and -float(indenter_gap(shape, p, X + st.u).min()) > max_jump_m
@@ -411,12 +436,14 @@ def solve_path(C, u0, X, shape, pose, pose_old, state, friction, k_n, k_t, case:
     def chain(first, second):
         (_, _, i1), (u2, law2, i2) = first, second
         info = {"iterations": i1["iterations"] + i2["iterations"], "cuts": 1 + i1["cuts"] + i2["cuts"], "residuals_m": i2["residuals_m"], "f": i2["f"]}
-        if "admm" in i2:  # the worse half's convergence
-            info["admm"] = max(i1["admm"], i2["admm"], key=lambda a: a.residual_n / max(a.tolerance_n, 1e-300))
+        if "admm" in i2:  # the worse half's convergence (an unsettled half first)
+            info["admm"] = max(i1["admm"], i2["admm"], key=lambda a: (not a.linearised, a.residual_n / max(a.tolerance_n, 1e-300)))
         return u2, law2, info
 
     return solve_with_halving(step, pose_old, pose, state, max_depth, jumps=jumps, too_deep=too_deep, deep_at_the_end="raise",
-                              next_start=lambda r: PointState(r[0].copy(), r[1].f_t.copy()), chain=chain)
+                              next_start=lambda r: PointState(r[0].copy(), r[1].f_t.copy()), chain=chain,
+                              unsettled=unsettled if held else None,
+                              unsettled_cuts=UNSETTLED_CUTS if unsettled_cuts is None else unsettled_cuts)
 
 
 def normal_force(law: _Law) -> float:

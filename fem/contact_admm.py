@@ -643,7 +643,7 @@ def admm_on_touching_rods(G: _Delassus, b: np.ndarray, n: np.ndarray, mu: float,
 
 def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, pose_old, state, friction: float, k: np.ndarray,
                warm: WarmStart, guess_points: np.ndarray | None = None, rtol: float = 1e-5, max_iterations: int = 200,
-               max_linearisations: int = MAX_LINEARISATIONS, f_floor_n: float = 1e-6):
+               max_linearisations: int = MAX_LINEARISATIONS, f_floor_n: float = 1e-6, relaxation_halvings: int = ROUND_RELAXATION_HALVINGS):
     """One quasi-static contact step from ``pose_old`` (where the points were at ``state.u``, with
     tangential forces ``state.f_t``) to ``pose``.
 
@@ -699,7 +699,7 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
     # under-relaxed rounds that have not settled in their budget go on at half the relaxation, twice (ROUND_RELAXATION_HALVINGS):
     # the sweep's 9 x 3 mm rods pressed to 3 x their free Euler load cycled at 0.15 for 60 rounds in six steps and settled at 0.07
     # (estimated 1427 % off, its rounds' residual, then 2.2 %); a step that settles in its budget is as before
-    for lin in range(rounds * (1 + ROUND_RELAXATION_HALVINGS) if relaxation is not None else rounds):
+    for lin in range(rounds * (1 + relaxation_halvings) if relaxation is not None else rounds):
         gap, n = gap_normal(shape, pose, X + u_star)
         P_old_t = state.f_t - np.einsum("ij,ij->i", state.f_t, n)[:, None] * n  # the last tangential force in today's plane
         moved = u_prev + drag

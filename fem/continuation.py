@@ -33,7 +33,8 @@ def midpoint(pose_old: Pose, pose: Pose) -> Pose:
 def solve_with_halving(step: Callable[[Pose, Pose, Any, bool], Any], pose_old: Pose, pose: Pose, start: Any, max_depth: int = 8, *,
                        jumps: Callable[[Pose, Any], bool] | None = None, too_deep: Callable[[Any], str | None] | None = None,
                        deep_at_the_end: str = "return", next_start: Callable[[Any], Any] = lambda result: result,
-                       chain: Callable[[Any, Any], Any] = lambda first, second: second):
+                       chain: Callable[[Any, Any], Any] = lambda first, second: second,
+                       unsettled: Callable[[Any], bool] | None = None, unsettled_cuts: int = 0):
     """Solve the move ``pose_old`` -> ``pose`` from ``start``, halving it where needed (module docstring).
 
     step(pose_old, pose, start, whole) -> result: one solve (``whole``: the move as asked, not a half
@@ -42,20 +43,29 @@ def solve_with_halving(step: Callable[[Pose, Pose, Any, bool], Any], pose_old: P
     the answer; next_start(result): the start of the next half from a half's result;
     chain(first, second): the result of two halves (default: the second's). At ``max_depth`` 0 a
     failure is raised, and a deep answer returned as it is (``deep_at_the_end = "return"``) or
-    refused with a :class:`SolverError` (``"raise"``)."""
+    refused with a :class:`SolverError` (``"raise"``).
+
+    unsettled(result): the answer stands but its solver did not settle (an iterative coupling that ran out
+    of its budget); such a move is split too, at most ``unsettled_cuts`` levels deep. There ``step`` is
+    called with ``final``: True where no such cut is left (the solver may spend its last resort), and
+    an answer that still did not settle is returned as it is."""
     if deep_at_the_end not in ("return", "raise"):
         raise ValueError(f'deep_at_the_end = "{deep_at_the_end}": choose "return" or "raise"')
-    return _solve(step, pose_old, pose, start, max_depth, True, jumps, too_deep, deep_at_the_end, next_start, chain)
+    hooks = (jumps, too_deep, deep_at_the_end, next_start, chain, unsettled)
+    return _solve(step, pose_old, pose, start, max_depth, unsettled_cuts if unsettled is not None else 0, True, hooks)
 
 
-def _solve(step, pose_old, pose, start, depth, whole, jumps, too_deep, deep_at_the_end, next_start, chain):
+def _solve(step, pose_old, pose, start, depth, cuts, whole, hooks):
+    jumps, too_deep, deep_at_the_end, next_start, chain, unsettled = hooks
     if not (depth > 0 and jumps is not None and jumps(pose, start)):
         try:
-            result = step(pose_old, pose, start, whole)
+            can_cut = depth > 0 and cuts > 0
+            result = step(pose_old, pose, start, whole) if unsettled is None else step(pose_old, pose, start, whole, final=not can_cut)
             deep = None if too_deep is None else too_deep(result)
             if deep is None:
-                return result
-            if depth <= 0:
+                if not (can_cut and unsettled(result)):
+                    return result
+            elif depth <= 0:
                 if deep_at_the_end == "raise":
                     raise SolverError(deep)
                 return result
@@ -65,6 +75,6 @@ def _solve(step, pose_old, pose, start, depth, whole, jumps, too_deep, deep_at_t
             if depth <= 0:
                 raise
     mid = midpoint(pose_old, pose)
-    first = _solve(step, pose_old, mid, start, depth - 1, False, jumps, too_deep, deep_at_the_end, next_start, chain)
-    second = _solve(step, mid, pose, next_start(first), depth - 1, False, jumps, too_deep, deep_at_the_end, next_start, chain)
+    first = _solve(step, pose_old, mid, start, depth - 1, cuts - 1, False, hooks)
+    second = _solve(step, mid, pose, next_start(first), depth - 1, cuts - 1, False, hooks)
     return chain(first, second)
