@@ -15,8 +15,9 @@ episode (--nonlinear-repeats). Usage:
     .venv/bin/python benchmarks/bench_tiers.py [--repeats 3] [--tiers linear reduced nonlinear]
         [--contact-solvers admm newton] [--scene SCENE] [--set PATH=VALUE ...] [--out out/bench]
 
-The Cosserat rods' held rounds (issue 38): ``--tiers linear reduced --contact-solvers admm --set
-'fidelity.solve.rod_kinematics="cosserat"' --set 'fidelity.solve.rod_coupling="held"'``.
+The default demo's scene runs the Cosserat rods' held rounds (issue 38; ``--tiers linear reduced
+--contact-solvers admm`` for them); the small-rotation tiers as they were before that (first order):
+``--set 'fidelity.solve.rod_kinematics="first_order"'``.
 """
 
 from __future__ import annotations

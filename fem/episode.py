@@ -55,7 +55,7 @@ class SolveSettings:
     contact_max_iterations: int = 200  # ADMM iterations per linearisation
     nonlinear_newton: str = "condensed"  # the nonlinear tier's step solver: "condensed" | "penalty" (fem.finite_strain)
     rod_kinematics: str = "first_order"  # "first_order" | "second_order" | "cosserat" (fem.rod_kinematics, fem.rod_exact; admm only)
-    rod_coupling: str = "dead"  # cosserat: "dead" | "held" (experimental: the rods held by the contact in their solves, fem.rod_exact)
+    rod_coupling: str = "dead"  # cosserat: "dead" | "held" (the rods held by the contact in their solves, fem.rod_exact)
     dynamics: str = "quasi_static"  # nonlinear tier: "quasi_static" | "backward_euler" (fem.dynamics)
     loss_factor: float = 0.1  # dynamics: damping ratio loss_factor / 2 at the rods' first bending mode
     steps_per_period: float = 4.0  # dynamics: the least steps per period of the rods' first bending mode

@@ -616,10 +616,6 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         kinematics.holds = held
         if rods_move:
             kinematics.inertia = rod_inertia(scene)
-        if held and log is not None:
-            log('warning: fidelity.solve.rod_coupling = "held" is experimental: on one of two meshes of the default demo its tip '
-                "displacement was 21.6 % off the nonlinear tier (rods left bent against the face by friction in a release "
-                "step, where the reference lets go; fem.rod_exact); compare with the nonlinear tier before relying on it")
         if not held:
             # every round of the contact loop, before the rods are solved: the rounds' fixed point diverges past the
             # limit (to an answer with little force, which the check after the step would pass)

@@ -45,15 +45,15 @@ their solves (``fidelity.solve.rod_coupling``):
   whatever holds its tip, and the rounds diverge (the default demo's flat punch, rods at 1.18 x: 2.8 N
   against the reference's 18.4 N; the tiny scene's flat press at about 1 x: 83 % off in force), so a rod past
   ``fidelity.solve.buckling_limit`` x that load is refused in every round (``CosseratKinematics.guard``).
-- ``"held"`` (experimental): also **held by the contact** (a Robin coupling, :meth:`CosseratKinematics.solve_rods`):
+- ``"held"`` (the default demo's): also **held by the contact** (a Robin coupling, :meth:`CosseratKinematics.solve_rods`):
   each touching point carries its round's force f_k and a spring of the contact's penalty to where the round
   put it. At the rounds' fixed point the rods sit there and the springs carry nothing, so the answer is the
   dead-load one; before it, the springs hold what the contact holds, and a rod pressed past its free Euler
   load by a face that grips its tip stands: the tiny scene's flat press at 1 x is 1.9 / 1.4 / 1.5 % off the
   nonlinear tier (rod-base von Mises, force, tip displacement), and the screw scene 2.9 / 2.4 / 5.0 % (photons
   2.2 %). The springs' pull enters the linear rod and the P-delta moment as its resultant about the bent rod's
-  tip (:meth:`_rod_answers`); the rounds are under-relaxed (``round_relaxation``) to ``round_rtol`` of their residual. Not yet robust: on
-  the default demo 6.7 / 5.8 / 6.0 % off on one mesh realisation, 11.4 / 4.7 / 21.6 % on another, where after
+  tip (:meth:`_rod_answers`); the rounds are under-relaxed (``round_relaxation``) to ``round_rtol`` of their residual. On
+  the default demo 6.6 / 5.8 / 5.7 % off on one mesh realisation, 11.4 / 4.7 / 21.6 % on another, where after
   the second release step three rods stay bent against the face by friction (the reference lets go; the tip
   within 9 % in the other frames but one, 25 %). Why the rounds need that much damping: their gain grows with
   the contact's penalty (rounds that took one rod Newton step each converged at a tenth of it and diverged at

@@ -55,6 +55,11 @@ SOLVE_FIXED_S = 2.5
 # 7.4 ms on the tiny scene's (2026-11-27): 2.2 ms + 2.6 us per tet; the reduced tier 2.8 ms on the
 # default demo (17x less); the nonlinear tier 15.8 s per frame on the default demo, 4.8 s on the screw
 SOLVE_STEP_S = {"linear": (2.2e-3, 2.6e-6), "reduced": (0.5e-3, 0.14e-6), "nonlinear": (0.5, 0.9e-3)}
+# the fast tiers with Cosserat rods (fem.rod_exact): their contact rounds, each a contact solve of the tier, and
+# the rods' solves: the default demo 189 ms a frame on the reduced tier and 972 ms on the linear one (mlsim
+# accuracy, solve stage 20, 2026-11-29), against 2.8 and 33 ms at first order: 25 rounds and 5 ms per rod and step
+COSSERAT_ROUNDS = 25
+COSSERAT_S_PER_ROD_STEP = 5.0e-3
 # per step the episode keeps float32 stress (6), von Mises and energy per tet and the vertices'
 # displacement (fem.quasistatic.Episode), and float64 fields of each distinct load while recovering them
 SOLVE_BYTES_PER_STEP_TET = 4 * (6 + 1 + 1) + 8 * 6
@@ -166,6 +171,8 @@ def _solve(scene) -> StageCost:
     settings = scene.fidelity.solve
     steps = solve_steps(frames, settings.substeps)
     fixed, per_tet = SOLVE_STEP_S[settings.tier]
+    if settings.tier != "nonlinear" and settings.rod_kinematics == "cosserat":
+        fixed, per_tet = COSSERAT_ROUNDS * fixed + COSSERAT_S_PER_ROD_STEP * scene.sensor.n_rods, COSSERAT_ROUNDS * per_tet
     body = BODY_BYTES_PER_TET * tets
     precompute = BODY_S_PER_TET * tets
     if settings.tier == "reduced":

@@ -542,11 +542,11 @@ class SolveFidelity(_Model):
     rod_kinematics: Literal["first_order", "second_order", "cosserat"] = "first_order"
     # rod_kinematics "cosserat": how the rods take the contact forces in their solves between the contact's
     # rounds. "dead": as dead loads (a rod past buckling_limit x its free Euler load is refused); "held"
-    # (experimental): also held by the contact's stiffness where it touches (a Robin coupling, fem.rod_exact),
+    # (the default demo's): also held by the contact's stiffness where it touches (a Robin coupling, fem.rod_exact),
     # so a rod pressed past its free Euler load by a face that grips its tip stands (the tiny scene's flat press
-    # at 1 x: 1.4 % off the nonlinear tier in force; the screw scene within 5 % on all four measures). Not yet
-    # robust: on one of two meshes of the default demo its tip displacement was 21.6 % off (rods left bent
-    # against the face by friction in a release step); the run log says so
+    # at 1 x: 1.4 % off the nonlinear tier in force; the screw scene within 5 % on all four measures). Where bent
+    # rods are let go (the default demo's lift-off: tip displacement 21.5 % off on one of two meshes, rods left bent
+    # against the face by friction) the run log says its error estimate does not hold (fem.rod_error)
     rod_coupling: Literal["dead", "held"] = "dead"
     # nonlinear tier: "quasi_static" (each step an equilibrium: no answer past a limit point, where a rod
     # buckles or snaps back) or "backward_euler" (implicit dynamics with the elastomer's inertia and damping,

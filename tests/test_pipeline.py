@@ -63,7 +63,8 @@ def test_keys_follow_exactly_the_fields_a_stage_reads():
 def test_a_tier_keeps_its_episode_when_fields_it_does_not_read_change():
     # `mlsim accuracy --set 'fidelity.solve.rod_kinematics="cosserat"'` re-ran the nonlinear reference (ten
     # minutes on the demo) although that tier does not read the linear tiers' rod kinematics
-    scene = load_scene(DEFAULT)
+    # (the demo's own solve is Cosserat: from first-order rods, so that setting them changes something)
+    scene = load_scene(DEFAULT).with_values({"fidelity.solve.rod_kinematics": "first_order", "fidelity.solve.rod_coupling": "dead"})
     nonlinear = scene.with_values({"fidelity.solve.tier": "nonlinear"})
     key = stage_key(nonlinear, "solve")
     for field, value in (("fidelity.solve.rod_kinematics", "cosserat"), ("fidelity.solve.rod_coupling", "held"),
