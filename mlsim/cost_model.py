@@ -178,8 +178,10 @@ def _solve(scene) -> StageCost:
     if settings.tier == "reduced":
         body += REDUCED_PATCHES_PER_ROD * scene.sensor.n_rods * 3 * nodes * 8
         # a response per contact patch after the factorisation: the screw scene's reduced solve took
-        # 138 CPU s from an empty cache (bench_cost_model, 2026-11-27), 7 x the linear body's
-        precompute *= 7.0
+        # 138 CPU s from an empty cache (bench_cost_model, 2026-11-27), 7 x the linear body's; after issue 40's
+        # precompute work 22.7 s (the screw scene) and 29.6 s (the default demo, Cosserat rods) from a cache
+        # holding only the mesh (2026-11-29, mlsim run --outputs solve): 1.2 x
+        precompute *= 1.2
     memory = body + steps * (SOLVE_BYTES_PER_STEP_TET * tets + SOLVE_BYTES_PER_STEP_NODE * VERTICES_PER_TET * tets)
     seconds = SOLVE_FIXED_S + precompute + steps * (fixed + per_tet * tets)
     return StageCost("solve", memory, seconds, frames=_int(frames), steps=_int(steps), tets=_int(tets), note=settings.tier)
