@@ -236,6 +236,26 @@ def test_a_variant_whose_stages_are_all_cached_still_reports_them(tmp_path, cach
     assert rb["photons_per_newton"] == pytest.approx(rb["total_photons"] / rb["peak_normal_force_n"])
 
 
+def test_a_fast_answer_its_own_estimate_calls_no_answer_is_escalated():
+    """The Cosserat tier answers rods past collapse without refusing them, and its estimate says how far off
+    it is: above ESCALATE_ESTIMATE (20 %) the sweep hands the load to the nonlinear tier as it does a refusal.
+    The sweep's own figures (2026-11-29): the 12 x 3 mm swipe 13608 % (escalated), the 9 x 3 mm press 5.3 %
+    and swipe 8 % with 13 releases (kept, their estimate and releases in the report)."""
+    from mlsim.sweep.run import ESCALATE_ESTIMATE, beyond_its_estimate
+
+    assert ESCALATE_ESTIMATE == 0.2
+    why = beyond_its_estimate({"tier": "reduced", "geometric_error_estimate": 136.08, "geometric_error_releases": [9, 12]})
+    assert "13608%" in why and "above 20%" in why and "[9, 12]" in why and "ESCALATE_ESTIMATE" in why
+    assert beyond_its_estimate({"tier": "linear", "geometric_error_estimate": 0.053, "geometric_error_releases": []}) is None
+    assert beyond_its_estimate({"tier": "linear", "geometric_error_estimate": 0.08, "geometric_error_releases": [3] * 13}) is None
+    assert beyond_its_estimate({"tier": "linear", "geometric_error_estimate": 0.2}) is None  # at the limit: kept
+    assert "above 20%" in beyond_its_estimate({"tier": "linear", "geometric_error_estimate": 0.2001})
+    assert "nan" in beyond_its_estimate({"tier": "linear", "geometric_error_estimate": float("nan")})  # no number: no answer
+    assert beyond_its_estimate({"tier": "linear", "geometric_error_estimate": None}) is None  # no estimate made
+    assert beyond_its_estimate({"tier": "nonlinear", "geometric_error_estimate": 5.0}) is None  # the reference itself
+    assert beyond_its_estimate({"tier": "linear", "geometric_error_estimate": 0.3}, limit=0.5) is None
+
+
 def test_a_load_the_fast_tier_refuses_is_answered_by_the_nonlinear_tier(tmp_path, cache):
     """A variant whose linear tier refuses the load as beyond its model (here: small_strain_limit set
     to 0.1 % of the rod height, so a 0.1 mm press of one rod passes it) is solved by the nonlinear tier; the
