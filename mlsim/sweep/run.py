@@ -170,25 +170,22 @@ def _load_metrics(scene, load: Load, cache_dir, wanted, escalate_to: str | None 
     outputs = ("solve", "camera") if "brightness" in wanted else ("solve",)
     s = load.apply(scene, outputs)
     escalated = None
+    can_escalate = escalate_to is not None and s.fidelity.solve.tier != escalate_to
     try:
         res = _run(s, cache_dir, outputs)
+        # an answer the tier itself says is no answer (a rod past collapse) is escalated as a refusal is
+        why = beyond_its_estimate(res.results["solve"].summary())
     except OutOfRangeError as exc:
-        # a load past the fast tier's model (a rod near buckling, a contact point past small strain):
-        # the reference tier answers it, and the record says which tier did and why
-        if escalate_to is None or s.fidelity.solve.tier == escalate_to:
+        # a load past the fast tier's model (a rod near buckling, a contact point past small strain)
+        if not can_escalate:
             raise
-        escalated = {"from_tier": s.fidelity.solve.tier, "reason": _reason(exc)}
+        why = _reason(exc)
+    if why is not None and can_escalate:
+        # the reference tier answers it, and the record says which tier did and why
+        escalated = {"from_tier": s.fidelity.solve.tier, "reason": why}
         s = escalated_scene(s, escalate_to)
         escalated.update(dynamics=s.fidelity.solve.dynamics, substeps=s.fidelity.solve.substeps)
         res = _run(s, cache_dir, outputs)
-    else:
-        # an answer the tier itself says is no answer (a rod past collapse): the reference tier answers it too
-        why = beyond_its_estimate(res.results["solve"].summary())
-        if why is not None and escalate_to is not None and s.fidelity.solve.tier != escalate_to:
-            escalated = {"from_tier": s.fidelity.solve.tier, "reason": why}
-            s = escalated_scene(s, escalate_to)
-            escalated.update(dynamics=s.fidelity.solve.dynamics, substeps=s.fidelity.solve.substeps)
-            res = _run(s, cache_dir, outputs)
     ep = res.results["solve"]
     out = {"ok": True, **_stage_record(res), "escalated": escalated}
     if "tear" in wanted:
