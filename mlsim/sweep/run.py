@@ -116,9 +116,10 @@ def check_metrics(wanted) -> None:
 # ------------------------------------------------------------------------------------ the worker
 def beyond_its_estimate(summary: dict, limit: float = ESCALATE_ESTIMATE) -> str | None:
     """Why a fast tier's episode is no answer by its own account (its ``geometric_error_estimate`` above
-    ``limit``), or None. ``summary``: :meth:`fem.quasistatic.Episode.summary`."""
+    ``limit``; inf is), or None: also where it made no estimate (None, or NaN: second-order rod kinematics
+    have none, fem.quasistatic). ``summary``: :meth:`fem.quasistatic.Episode.summary`."""
     est = summary.get("geometric_error_estimate")
-    if summary.get("tier") == "nonlinear" or est is None or est <= limit:  # (NaN and inf are above it)
+    if summary.get("tier") == "nonlinear" or est is None or np.isnan(est) or est <= limit:
         return None
     releases = summary.get("geometric_error_releases") or []
     after = f"; bent rods let go in steps {list(releases)}" if len(releases) else ""
