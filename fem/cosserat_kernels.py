@@ -21,9 +21,11 @@ is one loop over its segments, joints and point loads:
   dead tip moment, Newton's step with the same turn limit and backtracking on the imbalance. Each rod
   iterates alone, as each does in numpy's batch (its own radius; frozen once converged). A rod whose
   Hessian is not positive definite (a column past its buckling load, still straight), or that runs
-  out of iterations, is returned flagged at its last accepted state; ``fem.cosserat_rod`` hands those
-  to the numpy trust region (its radius starting again at MAX_TURN_RAD). This module imports nothing
-  of ``fem.cosserat_rod`` (its caller).
+  out of iterations, goes on in numpy's trust region, compiled (:func:`_eigen_step`: the step over the
+  scaled Hessian's eigenvalues, bisected as numpy does; the radius from MAX_TURN_RAD again, a budget of
+  its own), or, with a dead tip moment, is returned flagged to ``fem.cosserat_rod``'s numpy Newton.
+  (That trust region in numpy was a third of the held rods' time on the default demo.) This module
+  imports nothing of ``fem.cosserat_rod`` (its caller).
 
 Verified in tests/test_cosserat_kernels.py against the numpy functions to round-off, and the whole
 solve (``fem.cosserat_rod.solve_static(compiled=True)``, the default) against the numpy path to 1e-9
@@ -39,8 +41,9 @@ import math
 
 import numpy as np
 from numba import njit
+from numpy.linalg import eigh as _eigh  # bound here: a test's counting wrapper on np.linalg.eigh is no kernel
 
-CONVERGED, FALLBACK = 0, 1
+CONVERGED, FALLBACK, FAILED = 0, 1, 2
 
 
 # --- small dense helpers (3-vectors, 3 x 3 and 6 x 6 matrices as arrays) --------------------------------
@@ -477,6 +480,105 @@ def _boundary_step(D, O, g, l, radius, L, C, step):
     return False, mu
 
 
+@njit(cache=True)
+def _hessian_times(D, O, p, out):
+    """out = H p for one rod's block-tridiagonal Hessian (:func:`evaluate`'s convention; p, out (N, 6))."""
+    n = D.shape[0]
+    for e in range(n):
+        for i in range(6):
+            acc = 0.0
+            for j in range(6):
+                acc += D[e, i, j] * p[e, j]
+            if e >= 1:  # H[e, e - 1] = O[e]^T
+                for j in range(6):
+                    acc += O[e, j, i] * p[e - 1, j]
+            if e + 1 < n:  # H[e, e + 1] = O[e + 1]
+                for j in range(6):
+                    acc += O[e + 1, i, j] * p[e + 1, j]
+            out[e, i] = acc
+
+
+@njit(cache=True)
+def _model_decrease(D, O, g, step, work):
+    """The trust region's model decrease -g.p - p.H.p / 2 at the step p (N, 6); ``work`` (N, 6) scratch."""
+    _hessian_times(D, O, step, work)
+    gp = 0.0
+    php = 0.0
+    for e in range(D.shape[0]):
+        for c in range(6):
+            gp += g[e, c] * step[e, c]
+            php += step[e, c] * work[e, c]
+    return -gp - 0.5 * php
+
+
+@njit(cache=True)
+def _eigen_step(D, O, g, l, radius, step):
+    """fem.cosserat_rod._trust_region_step's step for one rod from its Hessian's eigenvalues: argmin g.p +
+    p.H.p / 2 over |p| <= radius in the region's norm (turns in rad, node moves in segment lengths), p = -(H +
+    mu W)^-1 g with the least mu >= max(0, -lambda_min) that keeps p within the radius, bisected over the
+    eigenvalues of the scaled Hessian as numpy does; in the hard case (g orthogonal to the lowest mode) that
+    mode fills the radius ([NocedalWright2006] sec. 4.3). For any H, also indefinite (a column past its
+    buckling load, still straight). Writes the step (N, 6); returns its norm in the region's."""
+    n = D.shape[0]
+    K = 6 * n
+    s = np.empty(K)  # numpy's 1 / scale: the step in the region's units times s is the step
+    for e in range(n):
+        for c in range(6):
+            s[6 * e + c] = 1.0 if c < 3 else l
+    H = np.zeros((K, K))
+    for e in range(n):
+        for i in range(6):
+            for j in range(6):
+                H[6 * e + i, 6 * e + j] = D[e, i, j] * s[6 * e + i] * s[6 * e + j]
+                if e >= 1:
+                    v = O[e, i, j] * s[6 * (e - 1) + i] * s[6 * e + j]
+                    H[6 * (e - 1) + i, 6 * e + j] = v
+                    H[6 * e + j, 6 * (e - 1) + i] = v
+    gs = np.empty(K)
+    for e in range(n):
+        for c in range(6):
+            gs[6 * e + c] = g[e, c] * s[6 * e + c]
+    lam, V = _eigh(H)
+    cg = V.T @ gs
+    tiny = 1e-14 * max(np.abs(lam).max(), 1e-300)
+    lo = max(0.0, -lam[0]) + tiny
+    newton = lam[0] > tiny
+    p = np.empty(K)
+    if newton:
+        p[:] = -(V @ (cg / lam))
+        if math.sqrt(np.sum(p * p)) <= radius:
+            return _scaled_back(p, s, step)
+    p_lo = -(V @ (cg / (lam + lo)))
+    n_lo = math.sqrt(np.sum(p_lo * p_lo))
+    if n_lo <= radius:
+        # the hard case: the lowest mode v fills the rest of the radius, on the side that lowers the model
+        v = V[:, 0]
+        extra = math.sqrt(max(radius * radius - n_lo * n_lo, 0.0))
+        sign = 1.0 if np.sum(v * gs) <= 0.0 else -1.0
+        p[:] = p_lo + sign * extra * v
+        return _scaled_back(p, s, step)
+    a, b = lo, lo + math.sqrt(np.sum(gs * gs)) / radius + abs(lam[0])
+    for _ in range(100):  # |p(mu)| falls monotonically in mu
+        mid = 0.5 * (a + b)
+        p[:] = -(V @ (cg / (lam + mid)))
+        if math.sqrt(np.sum(p * p)) > radius:
+            a = mid
+        else:
+            b = mid
+    p[:] = -(V @ (cg / (lam + b)))
+    return _scaled_back(p, s, step)
+
+
+@njit(cache=True)
+def _scaled_back(p, s, step):
+    """step (N, 6) = p (6N,) in the region's units times s; returns |p|."""
+    norm2 = 0.0
+    for i in range(p.shape[0]):
+        norm2 += p[i] * p[i]
+        step[i // 6, i % 6] = p[i] * s[i]
+    return math.sqrt(norm2)
+
+
 # --- the update and Newton's loop -------------------------------------------------------------------
 
 @njit(cache=True)
@@ -548,10 +650,11 @@ def _imbalance_rod(g, tol_f, tol_m):
 def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, stiffness, anchor, tol_f, tol_m, max_iterations, conservative,
                  max_turn, axial=0):
     """fem.cosserat_rod._newton on each rod of a batch (arguments as :func:`evaluate`; tol_f (B,) N and
-    tol_m (B,) N m its tolerances; max_turn rad, MAX_TURN_RAD) for as long as the rod's Hessian is positive
-    definite (the module docstring). Overwrites x and q with the rods' last accepted states; returns status (B,)
-    (CONVERGED, or FALLBACK: the numpy trust region is to go on from there) and the Newton iterations
-    taken (B,)."""
+    tol_m (B,) N m its tolerances; max_turn rad, MAX_TURN_RAD): Newton's method while the rod's Hessian is
+    positive definite, then under conservative loads numpy's trust region over the Hessian's eigenvalues (the
+    module docstring). Overwrites x and q with the rods' last accepted states; returns status (B,) (CONVERGED;
+    FAILED: the trust region out of iterations or radius, where numpy's raises; FALLBACK: with a dead moment,
+    numpy's Newton is to go on from there) and the iterations taken (B,)."""
     nb, n = q.shape[0], q.shape[1]
     l = length / n
     status = np.empty(nb, dtype=np.int64)
@@ -567,28 +670,58 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, st
     step = np.empty((n, 6))
     xt = np.empty((n + 1, 3))
     qt = np.empty((n, 4))
+    scratch = np.empty((n, 6))
     for r in range(nb):
         xr, qr = x[r], q[r]
         radius = max_turn
         E, work = _evaluate_rod(xr, qr, clamp[r], l, S, Bk, F[r], M[r], seg[r], along[r], offset[r], force[r], stiffness[r], anchor[r], axial, g, D, O)
         status[r] = FALLBACK
-        for it in range(max_iterations + 1):
-            if it == max_iterations:  # out of iterations: numpy's loop raises (or, after a fallback, retries)
-                break
+        # eigen: numpy's trust region (fem.cosserat_rod._newton), which the rod enters where its Hessian is not
+        # positive definite or it runs out of iterations, as numpy's solve hands it over: its radius from
+        # max_turn again, a budget of its own; out of that budget the rod has FAILED (numpy's loop raises)
+        eigen = False
+        it = 0
+        while True:
+            if it == max_iterations:
+                if eigen or not conservative:  # with a dead moment numpy's Newton goes on (FALLBACK)
+                    break
+                eigen, radius, it, status[r] = True, max_turn, 0, FAILED
             i0 = _imbalance_rod(g, tol_f[r], tol_m[r])
             if not i0 > 1.0:
                 status[r] = CONVERGED
                 break
-            if not _cholesky_rod(D, O, L, C):
-                break
-            _solve_rod(L, C, g, step)
-            for e in range(n):
-                for c in range(6):
-                    step[e, c] = -step[e, c]
-            iterations[r] = it + 1
+            definite = _cholesky_rod(D, O, L, C)
+            if not definite and not eigen:
+                if not conservative:
+                    break
+                eigen, radius, it, status[r] = True, max_turn, 0, FAILED
+            it += 1
+            iterations[r] += 1
             norm = 0.0
             predicted = 0.0
-            if conservative:
+            if eigen:
+                # numpy's step: Newton's where H is positive definite and it stays inside the radius, else from
+                # H's eigenvalues (:func:`_eigen_step`); the model's decrease in full
+                inside = False
+                if definite:
+                    _solve_rod(L, C, g, step)
+                    norm2 = 0.0
+                    for e in range(n):
+                        for c in range(6):
+                            step[e, c] = -step[e, c]
+                            sc = step[e, c] if c < 3 else step[e, c] / l
+                            norm2 += sc * sc
+                    norm = math.sqrt(norm2)
+                    inside = norm <= radius
+                if not inside:
+                    norm = _eigen_step(D, O, g, l, radius, step)
+                predicted = _model_decrease(D, O, g, step, scratch)
+            else:
+                _solve_rod(L, C, g, step)
+                for e in range(n):
+                    for c in range(6):
+                        step[e, c] = -step[e, c]
+            if conservative and not eigen:
                 # the trust region ([NocedalWright2006] ch. 4, as fem.cosserat_rod._newton): the step in its
                 # norm (turns in rad, node moves in segment lengths) within the radius, the energy's actual
                 # decrease against the model's, -g.p - p.H.p / 2 = -g.p / 2 at Newton's step
@@ -612,7 +745,7 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, st
                             gp += g[e, c] * step[e, c]
                     norm = radius
                     predicted = -0.5 * gp + 0.5 * mu * radius * radius
-            else:
+            elif not conservative:
                 # Newton's step, its largest turn limited to max_turn, backtracking on the imbalance (below)
                 turn = 0.0
                 for e in range(n):
@@ -642,7 +775,9 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, st
                     radius = min(2.0 * radius, 16.0 * max_turn)
                 noise = 1e-12 * (abs(E) + work)
                 if not (ratio > 1e-4 or (actual >= -noise and _imbalance_rod(gt, tol_f[r], tol_m[r]) < i0)):
-                    # rejected: the state stays, the radius shrank (above); numpy's loop does the same
+                    # rejected: the state stays, the radius shrank (above); numpy's loop does the same. A radius
+                    # run down ends the Newton (FALLBACK: numpy's trust region from max_turn) or the trust region
+                    # (FAILED, as numpy's loop ends)
                     if radius < 1e-12:
                         break
                     continue

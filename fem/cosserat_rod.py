@@ -484,8 +484,10 @@ def solve_static(section: RodSection, segments: int, tip_force_n=(0.0, 0.0, 0.0)
 def _newton_compiled(state: RodState, section: RodSection, clamp, F, M, tolerances, max_iterations: int, where: str,
                      loads: PointLoads | None = None) -> RodState:
     """:func:`_newton`'s answer: the compiled Newton (:func:`fem.cosserat_kernels.newton_batch`) on every rod,
-    then the numpy trust region from where it stopped on the rods it flagged (an indefinite Hessian, or
-    out of iterations). clamp, F, M and the tolerances are broadcast to the batch's leading shape."""
+    with numpy's trust region compiled where a rod's Hessian is indefinite or it runs out of iterations under
+    conservative loads; with a dead moment, numpy's Newton from where it stopped on the rods it flagged. Raises
+    :class:`SolverError` as numpy's loop does. clamp, F, M and the tolerances are broadcast to the batch's
+    leading shape."""
     from fem import cosserat_kernels as ck
 
     lead = np.broadcast_shapes(np.shape(clamp)[:-1], np.shape(F)[:-1], np.shape(M)[:-1], state.q.shape[:-2],
@@ -496,13 +498,21 @@ def _newton_compiled(state: RodState, section: RodSection, clamp, F, M, toleranc
     tol_f, tol_m = ck._owned(tolerances[0], lead).reshape(nrods), ck._owned(tolerances[1], lead).reshape(nrods)
     status, _ = ck.newton_batch(x, q, clamp_f, float(section.length_m), section.S, section.B, F_f, M_f, seg, along, offset, force,
                                 stiffness, anchor, tol_f, tol_m, int(max_iterations), not np.any(M_f), MAX_TURN_RAD, section.axial_code)
-    rest = np.flatnonzero(status != ck.CONVERGED)
+    springs = (None, None) if loads is None or loads.stiffness_n_m is None else (stiffness, anchor)
+
+    def part(rows):
+        return (RodState(x[rows], q[rows]), clamp_f[rows], F_f[rows], M_f[rows], (tol_f[rows], tol_m[rows]),
+                None if loads is None else PointLoads(seg, along, offset, force, *springs).take(rows))
+
+    failed = np.flatnonzero(status == ck.FAILED)
+    if failed.size:
+        st, c, f, m, tol, ld = part(failed)
+        _not_converged(st, section, c, f, m, tol, max_iterations, where, ld)
+    rest = np.flatnonzero(status == ck.FALLBACK)
     if rest.size:
-        springs = (None, None) if loads is None or loads.stiffness_n_m is None else (stiffness, anchor)
-        part = None if loads is None else PointLoads(seg, along, offset, force, *springs).take(rest)
+        st, c, f, m, tol, ld = part(rest)
         with one_blas_thread():  # small matrices: BLAS threads only fight each other
-            done = _newton(RodState(x[rest], q[rest]), section, clamp_f[rest], F_f[rest], M_f[rest], (tol_f[rest], tol_m[rest]),
-                           max_iterations, where, part)
+            done = _newton(st, section, c, f, m, tol, max_iterations, where, ld)
         x[rest], q[rest] = done.x, done.q
     return RodState(x.reshape(lead + (n + 1, 3)), q.reshape(lead + (n, 4)))
 
@@ -562,6 +572,12 @@ def _newton(state: RodState, section: RodSection, clamp: np.ndarray, F: np.ndarr
             t = np.where(worse, 0.5 * t, t)
             trial = _update(state, t[..., None] * step)
         state = _where(todo, trial, state)
+    _not_converged(state, section, clamp, F, M, tolerances, max_iterations, where, loads)
+
+
+def _not_converged(state: RodState, section: RodSection, clamp, F, M, tolerances, max_iterations: int, where: str,
+                   loads: PointLoads | None) -> None:
+    """Raise the :class:`SolverError` of rods that did not converge in ``max_iterations`` (their unbalance)."""
     blocks = gradient_and_hessian(state, section, clamp, F, M, hessian=False, loads=loads)[0]
     blocks = blocks.reshape(blocks.shape[:-1] + (-1, 6))
     raise SolverError(f"cosserat rod: Newton did not converge in {max_iterations} iterations at {where}; unbalanced force "

@@ -40,6 +40,7 @@ are backward differences over one step (:class:`Episode`).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 import weakref
@@ -611,6 +612,9 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     # rounds diverged and the normal force fell from 18.4 N to 2.8 N), and they are refused as second order's
     held = exact and kinematics is not None and settings.rod_coupling == "held"
     euler_n = _euler_load_n(scene) if second_order and not held else None
+    # a held rods' step that fails with a rod pressed past its free Euler load is a collapse the rounds do not
+    # follow: refused as beyond the tier (OutOfRangeError, which mlsim sweep escalates), not a solver's failure
+    collapse = (lambda case: _collapse_refused(kinematics, _euler_load_n(scene), case, settings.tier)) if held else (lambda case: contextlib.nullcontext())
     rod_model = "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)"
     if exact and kinematics is not None:
         kinematics.holds = held
@@ -672,8 +676,9 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 if u_last is not None and np.any(move != 0) and np.allclose(move, last_move, rtol=1e-9, atol=1e-15):
                     guess = 2.0 * u_now - u_last  # the same motion as the last step: extrapolate
                 u_before = u_now
-                u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case, guess=guess,
-                                                     **contact_kw, **solve_kw)
+                with collapse(case):
+                    u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case,
+                                                         guess=guess, **contact_kw, **solve_kw)
                 u_last, last_move = u_before, move
                 n_it = info["iterations"]
             else:
@@ -697,8 +702,9 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                     count[0] += info["iterations"]
                     return condensed.normal_force(law), (u, law, p, info)
 
-                z, (u, law, pose, info), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case,
-                                                                             z_min=tip_z - scene.sensor.rod.height_mm * 1e-3)
+                with collapse(case):
+                    z, (u, law, pose, info), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case,
+                                                                                 z_min=tip_z - scene.sensor.rod.height_mm * 1e-3)
                 state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
                 target[s] = state.force_target_n
                 n_it = count[0]
@@ -986,6 +992,34 @@ def _check_buckling(f: np.ndarray, rod: np.ndarray, n_rods: int, euler_n: float,
             f"fidelity.solve.buckling_limit = {limit}: the {tier} tier's {model} cannot follow a rod "
             'near buckling. Use fidelity.solve.tier = "nonlinear", a shallower press, shorter or thicker rods, or raise '
             "buckling_limit to accept the error")
+
+
+@contextlib.contextmanager
+def _collapse_refused(kinematics, euler_n: float, case: str, tier: str):
+    """Held Cosserat rods' step: a :class:`SolverError` inside it, where a rod was solved under an axial contact
+    load above its free Euler load ``euler_n`` (N), becomes an :class:`OutOfRangeError` (beyond the tier, which
+    ``mlsim sweep`` escalates). The held rods follow a rod the contact's friction grips past that load (to the
+    clamped-guided load, 4 x), but their rounds are a fixed point between the rods' and the contact's solves,
+    without the rods' inertia across a snap: a rod that collapses fails there, in its own Newton (the sweep's 5 N
+    press on 12 x 3 mm rods, at 5 x: "Newton did not converge ... unbalanced force 64 N") or in force control (the
+    force falls as the face goes deeper). Below that load a failure is the solver's, and is raised as it is."""
+    kinematics.axial_peak_n[:] = 0.0
+    try:
+        yield
+    except OutOfRangeError:
+        raise
+    except SolverError as exc:
+        peak = kinematics.axial_peak_n
+        j = int(np.argmax(peak))
+        if not peak[j] > euler_n:
+            raise
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise OutOfRangeError(
+            f"{case}: the step's contact rounds loaded rod {j} with up to {peak[j]:.3g} N along its axis, {peak[j] / euler_n:.2f} x "
+            f"its free Euler load {euler_n:.3g} N ({peak[j] / (4.0 * euler_n):.2f} x the clamped-guided load), and the step failed ({first}): the "
+            f"{tier} tier's held Cosserat rods follow a rod gripped past its free Euler load, not its collapse. Use "
+            'fidelity.solve.tier = "nonlinear" with fidelity.solve.dynamics = "backward_euler" (mlsim sweep hands such a load '
+            "to it by default), a smaller load, or shorter or thicker rods") from exc
 
 
 def _check_small_strain(du: np.ndarray, rod: np.ndarray, rod_height_m: float, limit: float, case: str, tier: str) -> None:

@@ -278,6 +278,9 @@ class CosseratKinematics:
         # guard(f): raises where the forces f (m, 3) N load a rod past what dead loads can follow (the tier's
         # buckling check, fem.quasistatic._check_buckling), before any rod is solved under them
         self.guard = None
+        # the largest axial (compressive) contact load (R,) N each rod was solved under since fem.quasistatic last
+        # cleared it (a step's solves): what a failed step is judged by, a collapse or a solver's failure
+        self.axial_peak_n = np.zeros(len(sections.rods))
 
     # --- the pieces -----------------------------------------------------------------------------------
 
@@ -394,6 +397,7 @@ class CosseratKinematics:
         u_r, th_r = u_r[rows], th_r[rows]
         segment, along, offset = self._segment_p[rows], self._along_p[rows], self._offset_p[rows]
         force = np.where(mask, f[index], 0.0)
+        self.axial_peak_n[rows] = np.maximum(self.axial_peak_n[rows], -force[..., 2].sum(axis=1))
         stiffness = anchor = None
         if hold is not None:
             q_frozen, f_pd, K_pts = hold

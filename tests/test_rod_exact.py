@@ -100,6 +100,13 @@ def test_q_vanishes_without_force_and_is_quadratic_at_small_force(rod0):
     (j, state, u_r, th_r, _, d_lin, _), = kin._answers(f)
     np.testing.assert_allclose(q[kin._points[j]], kin._nonlinear_part(j, state, u_r, th_r, d_lin, kin.X[kin._points[j]]),
                                rtol=0, atol=1e-12 * np.abs(q).max())
+    # each rod's largest axial contact load since it was cleared (fem.quasistatic._collapse_refused judges a failed step by it)
+    kin.axial_peak_n[:] = 0.0
+    press = f.copy()
+    press[:, 2] = -np.abs(f[:, 0])  # 0.05 N down on the tip face
+    kin.q(press)
+    kin.q(0.5 * press)
+    assert kin.axial_peak_n[j] == pytest.approx(0.05, rel=1e-12) and not np.delete(kin.axial_peak_n, j).any()
 
 
 def test_the_pdelta_load_carries_the_bent_rods_extra_root_moment(rod0):
@@ -241,6 +248,38 @@ def test_dead_loads_past_the_buckling_limit_are_refused_in_the_contact_round(tin
     dead = _flat_press(scene, 0.9).with_values({"fidelity.solve.rod_kinematics": "cosserat"})
     with pytest.raises(qs.OutOfRangeError, match=r"a contact round: rod \d+ carries .* Cosserat rods under dead contact loads .*buckling_limit"):
         qs.run_episode(dead, mesh, body=body)
+
+
+def test_a_held_rods_collapse_is_refused_as_beyond_the_tier_and_a_solvers_failure_is_not():
+    """A held rods' step that fails (a rod's Newton, force control) with a rod pressed past its free Euler load is a
+    collapse the rounds do not follow: an OutOfRangeError, which mlsim sweep escalates to the nonlinear tier with
+    dynamics (the sweep's 5 N press on 12 x 3 mm rods, at 5 x, failed in a rod's Newton and was recorded as failed).
+    Below that load the failure is the solver's and stays a SolverError; a refusal passes as it is; the peak is
+    cleared for each step."""
+    from types import SimpleNamespace
+
+    kin = SimpleNamespace(axial_peak_n=np.array([0.3, 2.0]))
+    newton = qs.SolverError("cosserat rod: Newton did not converge in 200 iterations at load step 1/16; unbalanced force 64 N")
+    with pytest.raises(qs.OutOfRangeError) as caught:
+        with qs._collapse_refused(kin, 0.1, "step 3 (t = 100.0 ms)", "reduced"):
+            kin.axial_peak_n[1] = 0.5  # the step's solves: rod 1 at 5 x its free Euler load of 0.1 N
+            raise newton
+    said = str(caught.value)
+    assert said.startswith("step 3 (t = 100.0 ms): the step's contact rounds loaded rod 1 with up to 0.5 N along its axis, 5.00 x its free "
+                           "Euler load 0.1 N (1.25 x"), said
+    assert "unbalanced force 64 N" in said and 'fidelity.solve.dynamics = "backward_euler"' in said and caught.value.__cause__ is newton
+    assert kin.axial_peak_n[0] == 0.0  # the last step's peaks cleared on entry
+    with pytest.raises(qs.SolverError) as caught:
+        with qs._collapse_refused(kin, 0.1, "step 4", "reduced"):
+            kin.axial_peak_n[:] = 0.09
+            raise newton
+    assert caught.value is newton and not isinstance(caught.value, qs.OutOfRangeError)
+    refusal = qs.OutOfRangeError("small_strain_limit")
+    with pytest.raises(qs.OutOfRangeError) as caught:
+        with qs._collapse_refused(kin, 0.1, "step 5", "reduced"):
+            kin.axial_peak_n[:] = 1.0
+            raise refusal
+    assert caught.value is refusal
 
 
 def _tip_history(ep) -> np.ndarray:
