@@ -66,7 +66,7 @@ from fem.episode import (  # the shared pieces, here too for fem.quasistatic's c
 from fem.indenters import Pose
 from fem.linsolve import one_blas_thread
 from fem.nonlinear import SolverError
-from mlsim.errors import OutOfRangeError
+from mlsim.errors import OutOfRangeError, RodCollapseError
 
 __all__ = ["SolveSettings", "LinearBody", "ReducedModel", "Episode", "ContactSetup", "tip_height_m", "build_reduced", "run_episode",
            "layer_materials", "bending_ratio", "geometric_error_estimate"]
@@ -614,7 +614,8 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     euler_n = _euler_load_n(scene) if second_order and not held else None
     # a held rods' step that fails with a rod pressed past its free Euler load is a collapse the rounds do not
     # follow: refused as beyond the tier (OutOfRangeError, which mlsim sweep escalates), not a solver's failure
-    collapse = (lambda case: _collapse_refused(kinematics, _euler_load_n(scene), case, settings.tier)) if held else (lambda case: contextlib.nullcontext())
+    collapse = ((lambda case, step, force_n: _collapse_refused(kinematics, _euler_load_n(scene), case, settings.tier, step, force_n)) if held
+                else (lambda case, step, force_n: contextlib.nullcontext()))
     rod_model = "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)"
     if exact and kinematics is not None:
         kinematics.holds = held
@@ -676,7 +677,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 if u_last is not None and np.any(move != 0) and np.allclose(move, last_move, rtol=1e-9, atol=1e-15):
                     guess = 2.0 * u_now - u_last  # the same motion as the last step: extrapolate
                 u_before = u_now
-                with collapse(case):
+                with collapse(case, s, normal_now):
                     u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case,
                                                          guess=guess, **contact_kw, **solve_kw)
                 u_last, last_move = u_before, move
@@ -702,7 +703,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                     count[0] += info["iterations"]
                     return condensed.normal_force(law), (u, law, p, info)
 
-                with collapse(case):
+                with collapse(case, s, normal_now):
                     z, (u, law, pose, info), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case,
                                                                                  z_min=tip_z - scene.sensor.rod.height_mm * 1e-3)
                 state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
@@ -995,10 +996,11 @@ def _check_buckling(f: np.ndarray, rod: np.ndarray, n_rods: int, euler_n: float,
 
 
 @contextlib.contextmanager
-def _collapse_refused(kinematics, euler_n: float, case: str, tier: str):
-    """Held Cosserat rods' step: a :class:`SolverError` inside it, where a rod was solved under an axial contact
-    load above its free Euler load ``euler_n`` (N), becomes an :class:`OutOfRangeError` (beyond the tier, which
-    ``mlsim sweep`` escalates). The held rods follow a rod the contact's friction grips past that load (to the
+def _collapse_refused(kinematics, euler_n: float, case: str, tier: str, step: int, force_n: float):
+    """Held Cosserat rods' step ``step``: a :class:`SolverError` inside it, where a rod was solved under an axial
+    contact load above its free Euler load ``euler_n`` (N), becomes a :class:`RodCollapseError` (beyond the tier;
+    ``force_n``: the indenter's normal force at the last step that converged, the load the rods collapse at,
+    which ``mlsim sweep`` records). The held rods follow a rod the contact's friction grips past that load (to the
     clamped-guided load, 4 x), but their rounds are a fixed point between the rods' and the contact's solves,
     without the rods' inertia across a snap: a rod that collapses fails there, in its own Newton (the sweep's 5 N
     press on 12 x 3 mm rods, at 5 x: "Newton did not converge ... unbalanced force 64 N") or in force control (the
@@ -1014,12 +1016,13 @@ def _collapse_refused(kinematics, euler_n: float, case: str, tier: str):
         if not peak[j] > euler_n:
             raise
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise OutOfRangeError(
-            f"{case}: the step's contact rounds loaded rod {j} with up to {peak[j]:.3g} N along its axis, {peak[j] / euler_n:.2f} x "
-            f"its free Euler load {euler_n:.3g} N ({peak[j] / (4.0 * euler_n):.2f} x the clamped-guided load), and the step failed ({first}): the "
-            f"{tier} tier's held Cosserat rods follow a rod gripped past its free Euler load, not its collapse. Use "
-            'fidelity.solve.tier = "nonlinear" with fidelity.solve.dynamics = "backward_euler" (mlsim sweep hands such a load '
-            "to it by default), a smaller load, or shorter or thicker rods") from exc
+        raise RodCollapseError(
+            f"{case}: the rods collapse: after the last step that converged, at {force_n:.4g} N on the indenter, this step's contact "
+            f"rounds loaded rod {j} with up to {peak[j]:.3g} N along its axis, {peak[j] / euler_n:.2f} x its free Euler load "
+            f"{euler_n:.3g} N ({peak[j] / (4.0 * euler_n):.2f} x the clamped-guided load), and the step failed ({first}): the {tier} "
+            "tier's held Cosserat rods follow a rod gripped past its free Euler load, not its collapse. To follow it use "
+            'fidelity.solve.tier = "nonlinear" with fidelity.solve.dynamics = "backward_euler"; else a smaller load, or shorter or '
+            "thicker rods", force_n, step) from exc
 
 
 def _check_small_strain(du: np.ndarray, rod: np.ndarray, rod_height_m: float, limit: float, case: str, tier: str) -> None:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["MlsimError", "SceneError", "Problem", "MeshingError", "SolverError", "OutOfRangeError", "require_finite"]
+__all__ = ["MlsimError", "SceneError", "Problem", "MeshingError", "SolverError", "OutOfRangeError", "RodCollapseError", "require_finite"]
 
 
 class MlsimError(RuntimeError):
@@ -60,6 +60,18 @@ class OutOfRangeError(SolverError):
     """A fast tier (``linear``, ``reduced``) refusing a load beyond the range of its model: a contact
     point moved past ``small_strain_limit`` of the rod height, or a rod loaded past ``buckling_limit``
     of its Euler load. The ``nonlinear`` tier answers such loads (``mlsim sweep`` hands them to it)."""
+
+
+class RodCollapseError(OutOfRangeError):
+    """A fast tier's held Cosserat rods collapsing (a step that failed after its contact rounds loaded a rod past
+    its free Euler load): the load the sensor carried at the last step that converged (``force_n``, N) and the
+    step that failed (``step``). Past that point a dead load snaps through; following it needs the nonlinear
+    tier with dynamics. ``mlsim sweep`` records the collapse load as the answer, not as a failure."""
+
+    def __init__(self, message: str, force_n: float, step: int):
+        super().__init__(message)
+        self.force_n = float(force_n)
+        self.step = int(step)
 
 
 def require_finite(array, what: str, fix: str, error: type[Exception] = ValueError) -> None:

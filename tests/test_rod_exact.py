@@ -250,33 +250,36 @@ def test_dead_loads_past_the_buckling_limit_are_refused_in_the_contact_round(tin
         qs.run_episode(dead, mesh, body=body)
 
 
-def test_a_held_rods_collapse_is_refused_as_beyond_the_tier_and_a_solvers_failure_is_not():
+def test_a_held_rods_collapse_is_refused_with_its_load_and_a_solvers_failure_is_not():
     """A held rods' step that fails (a rod's Newton, force control) with a rod pressed past its free Euler load is a
-    collapse the rounds do not follow: an OutOfRangeError, which mlsim sweep escalates to the nonlinear tier with
-    dynamics (the sweep's 5 N press on 12 x 3 mm rods, at 5 x, failed in a rod's Newton and was recorded as failed).
-    Below that load the failure is the solver's and stays a SolverError; a refusal passes as it is; the peak is
-    cleared for each step."""
+    collapse the rounds do not follow: a RodCollapseError (an OutOfRangeError) carrying the step and the load the
+    sensor carried at the last step that converged, which mlsim sweep records as the load's answer (the sweep's 5 N
+    press on 12 x 3 mm rods, at 5 x, failed in a rod's Newton and was recorded as failed). Below that load the
+    failure is the solver's and stays a SolverError; a refusal passes as it is; the peak is cleared for each step."""
     from types import SimpleNamespace
+
+    from mlsim.errors import RodCollapseError
 
     kin = SimpleNamespace(axial_peak_n=np.array([0.3, 2.0]))
     newton = qs.SolverError("cosserat rod: Newton did not converge in 200 iterations at load step 1/16; unbalanced force 64 N")
-    with pytest.raises(qs.OutOfRangeError) as caught:
-        with qs._collapse_refused(kin, 0.1, "step 3 (t = 100.0 ms)", "reduced"):
+    with pytest.raises(RodCollapseError) as caught:
+        with qs._collapse_refused(kin, 0.1, "step 3 (t = 100.0 ms)", "reduced", 3, 3.258):
             kin.axial_peak_n[1] = 0.5  # the step's solves: rod 1 at 5 x its free Euler load of 0.1 N
             raise newton
     said = str(caught.value)
-    assert said.startswith("step 3 (t = 100.0 ms): the step's contact rounds loaded rod 1 with up to 0.5 N along its axis, 5.00 x its free "
-                           "Euler load 0.1 N (1.25 x"), said
+    assert said.startswith("step 3 (t = 100.0 ms): the rods collapse: after the last step that converged, at 3.258 N on the indenter, "
+                           "this step's contact rounds loaded rod 1 with up to 0.5 N along its axis, 5.00 x its free Euler load 0.1 N (1.25 x"), said
     assert "unbalanced force 64 N" in said and 'fidelity.solve.dynamics = "backward_euler"' in said and caught.value.__cause__ is newton
+    assert isinstance(caught.value, qs.OutOfRangeError) and caught.value.force_n == 3.258 and caught.value.step == 3
     assert kin.axial_peak_n[0] == 0.0  # the last step's peaks cleared on entry
     with pytest.raises(qs.SolverError) as caught:
-        with qs._collapse_refused(kin, 0.1, "step 4", "reduced"):
+        with qs._collapse_refused(kin, 0.1, "step 4", "reduced", 4, 3.3):
             kin.axial_peak_n[:] = 0.09
             raise newton
     assert caught.value is newton and not isinstance(caught.value, qs.OutOfRangeError)
     refusal = qs.OutOfRangeError("small_strain_limit")
     with pytest.raises(qs.OutOfRangeError) as caught:
-        with qs._collapse_refused(kin, 0.1, "step 5", "reduced"):
+        with qs._collapse_refused(kin, 0.1, "step 5", "reduced", 5, 3.3):
             kin.axial_peak_n[:] = 1.0
             raise refusal
     assert caught.value is refusal

@@ -125,6 +125,40 @@ def test_a_nan_figure_is_a_dash_in_the_table_and_nan_in_the_csv(tmp_path):
     assert "failed" not in rows["height_mm=12"]  # a NaN figure is not a failure: no row has one, so no column
 
 
+def test_a_load_the_rods_collapse_under_is_recorded_with_its_collapse_load_and_not_escalated(tmp_path, monkeypatch):
+    """The held Cosserat rods collapsing under a load (mlsim.errors.RodCollapseError: the sweep's 5 N press on
+    12 x 3 mm rods gave way at 3.26 N) is the variant's answer to it: the record keeps the load the rods collapse at
+    and the step, it is not handed to the nonlinear tier (a dead load past the collapse snaps through: hours on that
+    tier), and the report shows the load in its ``collapse_n`` column and the reason in what failed."""
+    from mlsim.errors import RodCollapseError
+    from mlsim.sweep import run as sweep_run
+
+    asked = []
+
+    def collapsing(scene, cache_dir, outputs):
+        asked.append(scene.fidelity.solve.tier)
+        raise RodCollapseError("step 89 (t = 197.8 ms): the rods collapse: after the last step that converged, at 3.258 N ...", 3.258, 89)
+
+    monkeypatch.setattr(sweep_run, "_run", collapsing)
+    scene = load_scene(TINY).with_values({"fidelity.solve.tier": "reduced", "fidelity.solve.rod_kinematics": "cosserat",
+                                          "fidelity.solve.rod_coupling": "held"})
+    r = sweep_run._load_metrics(scene, PRESS, tmp_path, ("tear",), escalate_to="nonlinear")
+    assert asked == ["reduced"]  # not escalated
+    assert not r["ok"] and r["collapse_force_n"] == 3.258 and r["collapse_step"] == 89 and r["escalated"] is None
+    assert r["reason"].startswith("RodCollapseError: step 89 (t = 197.8 ms): the rods collapse")
+    varies = parse_vary(["sensor.rod.height_mm=12"])
+    records = [{"variant_id": "v000_00000000", "label": "height_mm=12", "values": {"sensor.rod.height_mm": 12.0}, "buildable": True,
+                "reason": None, "beam_strain_per_n": 0.5, "seconds": 1.0, "loads": {"small_press": r}}]
+    meta = {"base_scene": {"name": "mavig_tiny"}, "varies": [{"path": v.path, "values": list(v.values)} for v in varies],
+            "loads": [{"name": "small_press"}], "metrics": ["tear"], "angles_deg": []}
+    write_report(tmp_path, records, varies, meta, {"stored": 1, "variants": 1})
+    row = _csv_rows(tmp_path)["height_mm=12"]
+    assert float(row["small_press_collapse_n"]) == 3.258 and "small_press_force_n" not in row  # no figure of the load
+    assert row["failed"] == f"small_press: the rods collapse at 3.26 N: {r['reason']}"
+    header, md = _md_rows(tmp_path)
+    assert md["12"][header.index("small_press_collapse_n")] == "3.258"
+
+
 def _cli(tmp_path, capsys, *extra) -> tuple[int, str]:
     code = main(["sweep", str(TINY), "--vary", "sensor.rod.height_mm=9", "--out", str(tmp_path / "sw"), "--cache", str(tmp_path / "cache"),
                  "--quiet", *extra])

@@ -40,7 +40,10 @@ def rows(records: list[dict], varies, load_names: list[str]) -> list[dict]:
             if r is None:
                 continue
             if not r.get("ok"):
-                reasons.append(f"{name}: {r['reason']}")
+                # the rods collapse under the load (mlsim.errors.RodCollapseError): the load they carried last is a figure
+                row[f"{name}_collapse_n"] = r.get("collapse_force_n")
+                collapsed = f"the rods collapse at {r['collapse_force_n']:.3g} N: " if r.get("collapse_force_n") is not None else ""
+                reasons.append(f"{name}: {collapsed}{r['reason']}")
                 continue
             row[f"{name}_photons"] = r.get("total_photons")
             row[f"{name}_peak_rod_dn"] = r.get("peak_rod_dn")
@@ -121,7 +124,7 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
     # a fixed order (the varied fields, each load's figures in load order, the rest), of the columns
     # some variant has a value in
     per_load = ("photons", "peak_rod_dn", "photons_per_n", "force_n", "stress_kpa", "strain_pct", "sf_stress", "sf_strain", "tears",
-                "force_err_est", "releases")
+                "force_err_est", "releases", "collapse_n")
     order = ["variant", "label", *(v.name for v in varies), *(f"{n}_{m}" for n in load_names for m in per_load), "tear_risk", "tears",
              "hough_ok", "min_valley", "rim_gap_px", "hough_offset_px", "direction_mae_deg", "beam_strain_per_n", "tiers", "seconds", "failed"]
     present = {k for row in table for k, v in row.items() if v not in (None, "")}
@@ -152,7 +155,8 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
            "their per-rod contact force error (fem.quasistatic: first-order kinematics from the rods' bending; Cosserat rods from "
            "their ends' response turned with their tips, fem.rod_error; none with second-order rod kinematics); releases: with "
            "Cosserat rods, how many times a bent rod was let go (it snaps back at a step that depends on its frictional equilibrium: "
-           "where above 0 the estimate does not hold); the deformed render tier is within 1 % per rod of path tracing (`mlsim accuracy --stage render`)."]
+           "where above 0 the estimate does not hold); collapse_n: the load the rods collapse at (the last that converged: held Cosserat "
+           "rods past their clamped-guided buckling load, where a dead load snaps through), in place of the load's figures; the deformed render tier is within 1 % per rod of path tracing (`mlsim accuracy --stage render`)."]
     files.append(out / "sweep.md")
     atomic_bytes(files[-1], ("\n".join(md) + "\n").encode())
     files += _plots(out, table, varies, load_names)

@@ -160,12 +160,13 @@ def escalated_scene(scene, tier: str):
 def _load_metrics(scene, load: Load, cache_dir, wanted, escalate_to: str | None = ESCALATE_TO) -> dict:
     """One load on one variant: brightness (camera) and tear risk (solve). A load the variant's fast
     tier refuses as beyond its model (:class:`mlsim.errors.OutOfRangeError`) is solved again by
-    ``escalate_to`` (None: recorded as failed)."""
+    ``escalate_to`` (None: recorded as failed); one under which its rods collapse
+    (:class:`mlsim.errors.RodCollapseError`) is recorded with the load they collapse at, not escalated."""
     from dllm.calibration import grey
     from mlsim.render import rod_disks_px
     from mlsim.render.optics import disk_masks
 
-    from mlsim.errors import OutOfRangeError
+    from mlsim.errors import OutOfRangeError, RodCollapseError
 
     # the solve asked for by name: a cached camera result alone would leave it out of the plan
     outputs = ("solve", "camera") if "brightness" in wanted else ("solve",)
@@ -176,6 +177,12 @@ def _load_metrics(scene, load: Load, cache_dir, wanted, escalate_to: str | None 
         res = _run(s, cache_dir, outputs)
         # an answer the tier itself says is no answer (a rod past collapse) is escalated as a refusal is
         why = beyond_its_estimate(res.results["solve"].summary())
+    except RodCollapseError as exc:
+        # the rods collapse under the load (held Cosserat rods past their clamped-guided load): the load they collapse at
+        # is the variant's answer to it, a design figure; past it a dead load snaps through, which only the nonlinear
+        # tier with dynamics follows, at hours a load (the 12 x 3 mm press: not escalated)
+        return {"ok": False, "reason": _reason(exc), "collapse_force_n": exc.force_n, "collapse_step": exc.step,
+                "solve_tier": s.fidelity.solve.tier, "escalated": None}
     except OutOfRangeError as exc:
         # a load past the fast tier's model (a rod near buckling, a contact point past small strain)
         if not can_escalate:
