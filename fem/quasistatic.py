@@ -613,8 +613,9 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     held = exact and kinematics is not None and settings.rod_coupling == "held"
     euler_n = _euler_load_n(scene) if second_order and not held else None
     # a held rods' step that fails with a rod pressed past its free Euler load is a collapse the rounds do not
-    # follow: refused as beyond the tier (OutOfRangeError, which mlsim sweep escalates), not a solver's failure
-    collapse = ((lambda case, step, force_n: _collapse_refused(kinematics, _euler_load_n(scene), case, settings.tier, step, force_n)) if held
+    # follow: a RodCollapseError with the load the rods collapse at (mlsim sweep records it), not a solver's failure
+    free_euler_n = _euler_load_n(scene) if held else None
+    collapse = ((lambda case, step, force_n: _collapse_refused(kinematics, free_euler_n, case, settings.tier, step, force_n)) if held
                 else (lambda case, step, force_n: contextlib.nullcontext()))
     rod_model = "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)"
     if exact and kinematics is not None:
