@@ -56,8 +56,9 @@ ESCALATE_TO = "nonlinear"
 #: came within 2-4 x of the measured error where it holds (docs/stages/solve.md), so 20 % is a tier that
 #: cannot meet 5 %, not a close call
 ESCALATE_ESTIMATE = 0.2
-#: the fields of ``fidelity.solve`` a load file carries along (how the load must be stepped)
-LOAD_SOLVE_FIELDS = ("substeps", "rod_kinematics")
+#: the fields of ``fidelity.solve`` a load file carries along (how the load must be stepped); ``rod_coupling``
+#: goes with ``rod_kinematics`` (where the load's kinematics are applied, its rods' coupling is too)
+LOAD_SOLVE_FIELDS = ("substeps", "rod_kinematics", "rod_coupling")
 
 
 @dataclass(frozen=True)
@@ -70,17 +71,19 @@ class Load:
 
     def apply(self, scene, outputs: tuple[str, ...]):
         """The scene under this load. The load's solve settings are what it needs at the least: a scene
-        that steps finer (more ``substeps``) or with richer rod kinematics (``rod_kinematics``, in the
-        order of :data:`fem.rod_kinematics.ROD_KINEMATICS`) keeps its own, so that ``mlsim sweep --set
-        'fidelity.solve.rod_kinematics="cosserat"'`` reaches the swipe, whose file asks for second order."""
+        that steps finer (more ``substeps``) or with rod kinematics as rich (``rod_kinematics``, in the
+        order of :data:`fem.rod_kinematics.ROD_KINEMATICS`) keeps its own, and its rods' coupling with them; a
+        scene with poorer kinematics gets the load's and its ``rod_coupling`` (the swipe's held Cosserat rods)."""
         from fem.rod_kinematics import ROD_KINEMATICS
 
         own = scene.fidelity.solve
         values = {"load": self.load, "outputs": list(outputs)}
+        richer = ("rod_kinematics" in self.solve and self.solve["rod_kinematics"] in ROD_KINEMATICS
+                  and ROD_KINEMATICS.index(own.rod_kinematics) >= ROD_KINEMATICS.index(self.solve["rod_kinematics"]))
         for k, v in self.solve.items():
             if k == "substeps" and isinstance(v, int) and own.substeps >= v:
                 continue
-            if k == "rod_kinematics" and v in ROD_KINEMATICS and ROD_KINEMATICS.index(own.rod_kinematics) >= ROD_KINEMATICS.index(v):
+            if k in ("rod_kinematics", "rod_coupling") and richer:  # the scene's own rods, coupled as it says
                 continue
             values[f"fidelity.solve.{k}"] = v  # (a value the scene cannot take is refused by with_values, naming the field)
         return scene.with_values(values)
