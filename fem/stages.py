@@ -11,7 +11,7 @@ from mlsim.io import atomic_bytes
 from mlsim.scene import Scene
 from mlsim.stage import RunContext, Stage, cached_precompute, npz_io, stage_key
 
-__all__ = ["GEOMETRY_FIELDS", "BODY_FIELDS", "GEOMETRY", "MESH", "SOLVE", "REDUCED_MODEL"]
+__all__ = ["GEOMETRY_FIELDS", "BODY_FIELDS", "GEOMETRY", "MESH", "SOLVE", "REDUCED_MODEL", "reduced_model_payload"]
 
 # Scene fields that shape the rod array's geometry (shared by geometry and mesh).
 GEOMETRY_FIELDS = (
@@ -167,15 +167,21 @@ def _last_linear_body(scene: Scene, mesh):
     return _LAST_BODY[1]
 
 
-def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
-    """The reduced tier's precompute, keyed on the mesh and the body (not the load)."""
-    from fem.quasistatic import build_reduced
-
+def reduced_model_payload(scene: Scene) -> dict:
+    """What the reduced tier's precompute is keyed on: the mesh and the body (not the load); its cache key is
+    the hash of this (:func:`mlsim.stage.precompute_key`), which the run's estimate also reads."""
     # 3: each rod's point compliance and local responses (fem.contact_admm.RodBlockDelassus);
     # 4: the patch responses off their own rod in low-rank form (fem.quasistatic.far_field_basis);
     # 5: their SVDs on one BLAS thread (the same model to round-off: on two threads 70 of the screw
     # sensor's 14.8 M stress basis entries differed in their last bit, and the coefficients in round-off)
-    payload = {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(BODY_FIELDS), "version": "5"}
+    return {"mesh": stage_key(scene, "mesh"), "body": scene.content_hash(BODY_FIELDS), "version": "5"}
+
+
+def _cached_reduced(scene: Scene, mesh, ctx: "RunContext"):
+    """The reduced tier's precompute, keyed on the mesh and the body (not the load)."""
+    from fem.quasistatic import build_reduced
+
+    payload = reduced_model_payload(scene)
     return cached_precompute(ctx, REDUCED_MODEL, payload, lambda: build_reduced(scene, mesh),
                               "[solve] reduced tier: precomputing the contact points' compliance and responses (cached for this sensor)")
 

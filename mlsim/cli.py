@@ -100,7 +100,7 @@ def cmd_run(args, outputs=None, out_suffix: str = "") -> int:
     from mlsim import run_budget  # the cost before the run, and its budget (issue 39)
 
     steps = pipeline.plan(scene, cache, outputs)
-    estimate = run_budget.estimate(scene, steps)
+    estimate = run_budget.estimate(scene, steps, cache)
     if args.dry_run:  # the plan, then each stage's cost (one print: mlsim.dry_run)
         from mlsim.dry_run import print_plan
 

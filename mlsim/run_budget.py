@@ -80,9 +80,24 @@ class RunEstimate:
         return lines
 
 
-def estimate(scene, steps) -> RunEstimate:
-    """The cost of the plan ``steps`` (:func:`mlsim.pipeline.plan`): the stages it runs."""
-    return RunEstimate(tuple((s.stage.name, stage_cost(scene, s.stage.name)) for s in steps if s.action == "run"), process_bytes(scene))
+def estimate(scene, steps, cache=None) -> RunEstimate:
+    """The cost of the plan ``steps`` (:func:`mlsim.pipeline.plan`): the stages it runs. ``cache``
+    (:class:`mlsim.pipeline.Cache`, or None): where the solve's reduced-tier precompute is already
+    cached, it is not priced."""
+    cached = cache is not None and _reduced_model_cached(scene, cache)
+    return RunEstimate(tuple((s.stage.name, stage_cost(scene, s.stage.name, precompute_cached=cached)) for s in steps if s.action == "run"),
+                       process_bytes(scene))
+
+
+def _reduced_model_cached(scene, cache) -> bool:
+    """Whether the cache holds the reduced tier's precompute of this scene's sensor (ml_rod_array scenes on the
+    reduced tier only)."""
+    if scene.kind != "ml_rod_array" or scene.load is None or scene.fidelity.solve.tier != "reduced":
+        return False
+    from fem.stages import REDUCED_MODEL, reduced_model_payload
+    from mlsim.stage import precompute_key
+
+    return bool(cache.has(REDUCED_MODEL.name, precompute_key(reduced_model_payload(scene))))
 
 
 def enforce(est: RunEstimate, max_memory_gb: float | None = None, max_frames: int | None = None, over_budget: bool = False) -> None:

@@ -203,10 +203,15 @@ def memo(key: tuple, build: Callable[[], Any]):
     return value
 
 
+def precompute_key(payload: dict) -> str:
+    """The cache key of a load-independent precompute (:func:`cached_precompute`) keyed on ``payload``."""
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+
 def cached_precompute(ctx: RunContext, stage: Stage, payload: dict, build: Callable[[], Any], message: str):
     """A load-independent precompute (not a stage of the plan) from the cache by the hash of
     ``payload``, else ``build()`` and cache it: a dataset of episodes on one sensor pays once."""
-    key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+    key = precompute_key(payload)
     used = getattr(ctx.cache, "used", None)
     if used is not None:  # also when this process's memo answers: the result is on disk all the same
         used.add((stage.name, key))

@@ -37,6 +37,37 @@ def test_only_the_stages_to_run_are_priced(cache):
     assert est.seconds == pytest.approx(cost_model.stage_cost(scene, "mesh").seconds)
 
 
+def test_a_cached_reduced_model_is_not_priced(tmp_path):
+    """The reduced tier's precompute (the sensor's model, cached apart from the solve, keyed on mesh and body) is
+    priced only where the cache lacks it: with it cached the solve costs the rest, and the table says why."""
+    from fem.stages import REDUCED_MODEL, reduced_model_payload
+    from mlsim.stage import precompute_key
+
+    scene = load_scene(DEFAULT)
+    assert scene.fidelity.solve.tier == "reduced"
+    full = cost_model.stage_cost(scene, "solve")
+    cached = cost_model.stage_cost(scene, "solve", precompute_cached=True)
+    assert cached.seconds == pytest.approx(full.seconds - 1.2 * cost_model.BODY_S_PER_TET * cost_model.estimated_tets(scene))
+    assert cached.note == "reduced (its precompute cached)" and full.note == "reduced"
+    key = precompute_key(reduced_model_payload(scene))
+    asked = []
+
+    class Holding:  # a cache that holds the sensor's reduced model and nothing else
+        def has(self, stage, k):
+            asked.append((stage, k))
+            return (stage, k) == (REDUCED_MODEL.name, key)
+
+    plan = pipeline.plan(scene, None, ("solve",))
+    solve = dict(run_budget.estimate(scene, plan, Holding()).rows)["solve"]
+    assert solve.seconds == pytest.approx(cached.seconds) and asked == [(REDUCED_MODEL.name, key)]
+    assert dict(run_budget.estimate(scene, plan, pipeline.Cache(tmp_path)).rows)["solve"].seconds == pytest.approx(full.seconds)
+    # another tier has no such model: priced as before, the cache not asked
+    linear = scene.with_values({"fidelity.solve.tier": "linear"})
+    asked.clear()
+    assert dict(run_budget.estimate(linear, plan, Holding()).rows)["solve"].seconds == pytest.approx(cost_model.stage_cost(linear, "solve").seconds)
+    assert asked == []
+
+
 def test_run_past_the_memory_budget_is_refused_before_it_starts(tmp_path, capsys):
     out = tmp_path / "out"
     code = main(["run", TINY, "--outputs", "geometry", "--max-memory-gb", "0.01", "--cache", str(tmp_path / "c"), "--out", str(out)])
