@@ -499,6 +499,17 @@ def _hessian_times(D, O, p, out):
 
 
 @njit(cache=True)
+def _region_norm(step, l):
+    """|p| of a step p (N, 6) in the trust region's norm: turns in rad, node moves in segment lengths l."""
+    norm2 = 0.0
+    for e in range(step.shape[0]):
+        for c in range(6):
+            sc = step[e, c] if c < 3 else step[e, c] / l
+            norm2 += sc * sc
+    return math.sqrt(norm2)
+
+
+@njit(cache=True)
 def _model_decrease(D, O, g, step, work):
     """The trust region's model decrease -g.p - p.H.p / 2 at the step p (N, 6); ``work`` (N, 6) scratch."""
     _hessian_times(D, O, step, work)
@@ -697,42 +708,27 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, st
                 eigen, radius, it, status[r] = True, max_turn, 0, FAILED
             it += 1
             iterations[r] += 1
-            norm = 0.0
-            predicted = 0.0
-            if eigen:
-                # numpy's step: Newton's where H is positive definite and it stays inside the radius, else from
-                # H's eigenvalues (:func:`_eigen_step`); the model's decrease in full
-                inside = False
-                if definite:
-                    _solve_rod(L, C, g, step)
-                    norm2 = 0.0
-                    for e in range(n):
-                        for c in range(6):
-                            step[e, c] = -step[e, c]
-                            sc = step[e, c] if c < 3 else step[e, c] / l
-                            norm2 += sc * sc
-                    norm = math.sqrt(norm2)
-                    inside = norm <= radius
-                if not inside:
-                    norm = _eigen_step(D, O, g, l, radius, step)
-                predicted = _model_decrease(D, O, g, step, scratch)
-            else:
+            if definite:  # Newton's step from H's factors
                 _solve_rod(L, C, g, step)
                 for e in range(n):
                     for c in range(6):
                         step[e, c] = -step[e, c]
-            if conservative and not eigen:
-                # the trust region ([NocedalWright2006] ch. 4, as fem.cosserat_rod._newton): the step in its
-                # norm (turns in rad, node moves in segment lengths) within the radius, the energy's actual
-                # decrease against the model's, -g.p - p.H.p / 2 = -g.p / 2 at Newton's step
-                norm2 = 0.0
+            # the trust region's norm of it (turns in rad, node moves in segment lengths); none without the factors
+            norm = _region_norm(step, l) if definite and conservative else math.inf
+            predicted = 0.0
+            if eigen:
+                # numpy's step (fem.cosserat_rod._trust_region_step): Newton's where H is positive definite and it stays
+                # inside the radius, else from H's eigenvalues (:func:`_eigen_step`); the model's decrease in full
+                if not norm <= radius:
+                    norm = _eigen_step(D, O, g, l, radius, step)
+                predicted = _model_decrease(D, O, g, step, scratch)
+            elif conservative:
+                # the trust region ([NocedalWright2006] ch. 4, as fem.cosserat_rod._newton): the step within the radius,
+                # the energy's actual decrease against the model's, -g.p - p.H.p / 2 = -g.p / 2 at Newton's step
                 gp = 0.0
                 for e in range(n):
                     for c in range(6):
-                        sc = step[e, c] if c < 3 else step[e, c] / l
-                        norm2 += sc * sc
                         gp += g[e, c] * step[e, c]
-                norm = math.sqrt(norm2)
                 predicted = -0.5 * gp
                 if norm > radius:
                     found, mu = _boundary_step(D, O, g, l, radius, L, C, step)
@@ -745,7 +741,7 @@ def newton_batch(x, q, clamp, length, S, Bk, F, M, seg, along, offset, force, st
                             gp += g[e, c] * step[e, c]
                     norm = radius
                     predicted = -0.5 * gp + 0.5 * mu * radius * radius
-            elif not conservative:
+            else:
                 # Newton's step, its largest turn limited to max_turn, backtracking on the imbalance (below)
                 turn = 0.0
                 for e in range(n):

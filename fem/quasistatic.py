@@ -614,9 +614,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     euler_n = _euler_load_n(scene) if second_order and not held else None
     # a held rods' step that fails with a rod pressed past its free Euler load is a collapse the rounds do not
     # follow: a RodCollapseError with the load the rods collapse at (mlsim sweep records it), not a solver's failure
-    free_euler_n = _euler_load_n(scene) if held else None
-    collapse = ((lambda case, step, force_n: _collapse_refused(kinematics, free_euler_n, case, settings.tier, step, force_n)) if held
-                else (lambda case, step, force_n: contextlib.nullcontext()))
+    held_rods, free_euler_n = (kinematics, _euler_load_n(scene)) if held else (None, None)
     rod_model = "Cosserat rods under dead contact loads" if exact else "second-order rod kinematics (P-delta)"
     if exact and kinematics is not None:
         kinematics.holds = held
@@ -678,7 +676,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 if u_last is not None and np.any(move != 0) and np.allclose(move, last_move, rtol=1e-9, atol=1e-15):
                     guess = 2.0 * u_now - u_last  # the same motion as the last step: extrapolate
                 u_before = u_now
-                with collapse(case, s, normal_now):
+                with _collapse_refused(held_rods, free_euler_n, case, settings.tier, s, normal_now):
                     u, law, info = condensed.solve_path(C, u0, X, shape, pose, pose_old, pstate, load.friction_coefficient, k_n, k_t, case=case,
                                                          guess=guess, **contact_kw, **solve_kw)
                 u_last, last_move = u_before, move
@@ -704,7 +702,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                     count[0] += info["iterations"]
                     return condensed.normal_force(law), (u, law, p, info)
 
-                with collapse(case, s, normal_now):
+                with _collapse_refused(held_rods, free_euler_n, case, settings.tier, s, normal_now):
                     z, (u, law, pose, info), _ = condensed.solve_points_at_force(state.force_target_n, state.position_m[2], at_z, z_free, case=case,
                                                                                  z_min=tip_z - scene.sensor.rod.height_mm * 1e-3)
                 state = trajectory.IndenterState(state.t_s, (state.position_m[0], state.position_m[1], z), state.yaw_rad, state.force_target_n, state.ramp_from_n)
@@ -1005,7 +1003,11 @@ def _collapse_refused(kinematics, euler_n: float, case: str, tier: str, step: in
     clamped-guided load, 4 x), but their rounds are a fixed point between the rods' and the contact's solves,
     without the rods' inertia across a snap: a rod that collapses fails there, in its own Newton (the sweep's 5 N
     press on 12 x 3 mm rods, at 5 x: "Newton did not converge ... unbalanced force 64 N") or in force control (the
-    force falls as the face goes deeper). Below that load a failure is the solver's, and is raised as it is."""
+    force falls as the face goes deeper). Below that load a failure is the solver's, and is raised as it is; without
+    held rods (``kinematics`` None) every error is."""
+    if kinematics is None:
+        yield
+        return
     kinematics.axial_peak_n[:] = 0.0
     try:
         yield
