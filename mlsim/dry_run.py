@@ -50,7 +50,8 @@ def dataset_plan(spec, base, out: Path, workers: int, executor: str) -> int:
     todo = [j for j in jobs if j["episode_id"] not in done]
     per_action = Counter(j["action"] for j in jobs)
     print(f"dataset {spec.name}: {len(jobs)} episodes ({', '.join(f'{a} {n}' for a, n in per_action.items())}) by {len(people)} people, "
-          f"seed {spec.seed}, base scene {base.name} (solve tier {base.fidelity.solve.tier}, render tier {base.fidelity.render.tier})")
+          f"seed {spec.seed}, base scene {base.name} (solve tier {base.fidelity.solve.tier} with {_rods(spec, base)}, render tier "
+          f"{base.fidelity.render.tier})")
     print(f"  {len(done)} already stored in {out}, {len(todo)} to run on {workers} {executor} worker(s); frames stored: {spec.store_frames}")
     if spec.chain == "batched":  # the device as the run would resolve it here ("cuda" without one raises, as the run would)
         from mlsim.dataset.batched import resolve_device
@@ -60,6 +61,12 @@ def dataset_plan(spec, base, out: Path, workers: int, executor: str) -> int:
     else:
         print("  chain: per_episode on the CPU (the default and the reference)")
     return 0
+
+
+def _rods(spec, base) -> str:
+    """The episodes' rods as the dataset runs them: the spec's first order (the datasets' rate) or the base scene's own."""
+    kinematics = base.fidelity.solve.rod_kinematics.replace("_", "-")
+    return (f"{kinematics} rods by the spec's rod_kinematics" if spec.rod_kinematics == "first_order" else f"the base scene's {kinematics} rods")
 
 
 def sweep_plan(scene, variants, out: Path, loads, wanted, workers: int, cache=None, direction=None, angles=None,

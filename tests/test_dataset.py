@@ -346,3 +346,28 @@ def test_the_cnn_learns_the_simulated_interactions_of_an_unseen_person(small):
             assert list(ex.test_people) == [1]
             accuracy.append(ex.metrics.accuracy)
         assert np.mean(accuracy) > floor, (n, accuracy)
+
+
+def test_the_episodes_rods_are_first_order_unless_the_spec_asks_for_the_scenes(tmp_path):
+    """The screw scene ships held Cosserat rods; a dataset's episodes solve them at first order (the
+    datasets' rate): the base scene they get is the shipped one without its rods' two lines, so the
+    datasets made before keep their spec hash, base scene and solve key (their bytes). The spec's
+    rod_kinematics = "scene" runs the base scene's own rods and hashes apart."""
+    from mlsim.pipeline import stage_key
+    from mlsim.scene import load_scene
+
+    spec, base = load_dataset_spec(write_spec(tmp_path))
+    shipped = load_scene(tmp_path / "screw.toml")
+    assert (shipped.fidelity.solve.rod_kinematics, shipped.fidelity.solve.rod_coupling) == ("cosserat", "held")
+    lines = (tmp_path / "screw.toml").read_text().splitlines(keepends=True)
+    (tmp_path / "before.toml").write_text("".join(l for l in lines if not l.startswith(("rod_kinematics", "rod_coupling"))))
+    before = load_scene(tmp_path / "before.toml")
+    assert base.fidelity.solve.rod_kinematics == "first_order" and base.content_hash() == before.content_hash()
+    assert stage_key(base, "solve") == stage_key(before, "solve") != stage_key(shipped, "solve")
+    assert "rod_kinematics" not in spec.model_dump(mode="json")
+    explicit, _ = load_dataset_spec(write_spec(tmp_path, extra='rod_kinematics = "first_order"\n'))
+    assert explicit.content_hash() == spec.content_hash()
+    own, own_base = load_dataset_spec(write_spec(tmp_path, extra='rod_kinematics = "scene"\n'))
+    assert own_base.content_hash() == shipped.content_hash() and own.content_hash() != spec.content_hash()
+    with pytest.raises(SceneError, match="rod_kinematics"):
+        load_dataset_spec(write_spec(tmp_path, extra='rod_kinematics = "cosserat"\n'))

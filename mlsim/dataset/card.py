@@ -49,7 +49,9 @@ def write_card(out_dir: str | Path, spec, base, summary: dict) -> Path:
         "",
         "## How it was made",
         f"- Spec hash `{summary['spec_hash'][:16]}`, seed {spec.seed}; base scene `{spec.scene}` (hash `{attrs['base_scene_hash'][:16]}`).",
-        f"- Tiers: solve `{fid.solve.tier}`, render `{fid.render.tier}` ({_render_tier_detail(fid.render)}), mesh edge {fid.mesh.edge_length_mm:g} mm; "
+        f"- Tiers: solve `{fid.solve.tier}` with {fid.solve.rod_kinematics.replace('_', '-')} rods ("
+        + ("the spec's `rod_kinematics`, the datasets' rate" if spec.rod_kinematics == "first_order" else "the base scene's own")
+        + f"), render `{fid.render.tier}` ({_render_tier_detail(fid.render)}), mesh edge {fid.mesh.edge_length_mm:g} mm; "
         f"DLLM alpha {base.dllm.alpha:g}, beta {base.dllm.beta:g}.",
         f"- The interactions: `mlsim.interactions` (clamp at {spec.interaction.grip_force_n:g} N, then one minimum-jerk stroke "
         "with tremor; the action definitions are in that module's docstring).",

@@ -9,6 +9,7 @@ A spec is a TOML file (``scenes/interactions/paper.toml``)::
     samples_per_action = 100        # spread evenly over the people
     actions = ["push", "pull", ...] # default: the eight of SPEC 1.5
     store_frames = false            # the camera frames too (chunked, compressed); large
+    rod_kinematics = "first_order"  # the episodes' rods; "scene": the base scene's own (below)
 
     [interaction]                   # mlsim.interactions.InteractionSpec: the screw, the clamp, the people's ranges
     grip_force_n = 3.0
@@ -21,6 +22,14 @@ The chain after the solve (``docs/uses/datasets.md``, the batched chain)::
     chain = "per_episode"           # the default and the reference; "batched": mlsim.dataset.batched
     device = "auto"                 # the batched chain's: "auto" (CUDA where torch finds it, else the CPU), "cpu", "cuda"
     batch_episodes = 16             # the batched chain's episodes per batch (one sensor's)
+
+The episodes' rods: ``rod_kinematics = "first_order"`` (the default) solves them as the base scene's
+tier with first-order rods (``fidelity.solve.rod_kinematics = "first_order"``, ``rod_coupling = "dead"``),
+whatever the base scene says: the datasets' rate. The screw scene ships held Cosserat rods, 2.8 / 2.3 /
+4.8 / 2.2 % off the nonlinear tier (rod-base von Mises / per-rod force / tip displacement / photons;
+docs/stages/solve.md) at 15 x the first-order solve's cost a frame; first order is 4.3 / 3.9 / 1.1 /
+3.1 % off, and the datasets' whole chain costs about 8 ms a frame. ``"scene"``: the base scene's own
+rods, at their cost.
 
 Unknown keys and bad values are refused with the dotted path, the value and what is valid, as
 scenes are (:mod:`mlsim.scene`).
@@ -41,9 +50,12 @@ from mlsim.scene import Bool, Scene, _Model, _problems_from_pydantic, load_scene
 
 __all__ = ["DatasetSpec", "load_dataset_spec", "dataset_spec_from_dict"]
 
-# The chain's fields at their defaults are left out of the spec's dump and hash (the datasets made
-# before they existed keep theirs)
-_CHAIN_DEFAULTS = {"chain": "per_episode", "device": "auto", "batch_episodes": 16}
+# The chain's and the rods' fields at their defaults are left out of the spec's dump and hash (the
+# datasets made before they existed keep theirs)
+_CHAIN_DEFAULTS = {"chain": "per_episode", "device": "auto", "batch_episodes": 16, "rod_kinematics": "first_order"}
+
+#: the base scene's solve fields a spec's ``rod_kinematics = "first_order"`` sets (the datasets' rate)
+FIRST_ORDER_RODS = {"fidelity.solve.rod_kinematics": "first_order", "fidelity.solve.rod_coupling": "dead"}
 
 
 class DatasetSpec(_Model):
@@ -68,6 +80,8 @@ class DatasetSpec(_Model):
     device: Literal["auto", "cpu", "cuda"] = "auto"
     # the batched chain's episodes per batch (a GPU wants many: 100 on an H200 took 31 GiB)
     batch_episodes: Annotated[int, Strict(), Field(ge=1, le=10_000)] = 16
+    # the episodes' rods: first order whatever the base scene says (the datasets' rate), or the base scene's own
+    rod_kinematics: Literal["first_order", "scene"] = "first_order"
 
     @field_validator("randomize", mode="before")
     @classmethod
@@ -136,7 +150,8 @@ def _chain_problems(spec: DatasetSpec) -> list[Problem]:
 
 
 def load_dataset_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[DatasetSpec, Scene]:
-    """Read and validate a dataset spec and its base scene; returns (spec, base scene).
+    """Read and validate a dataset spec and its base scene; returns (spec, base scene), the base scene with
+    the spec's rods (``rod_kinematics``: first order, :data:`FIRST_ORDER_RODS`, unless ``"scene"``).
 
     ``overrides``: top-level fields to change (e.g. ``{"samples_per_action": 16}``)."""
     path = Path(path)
@@ -147,6 +162,8 @@ def load_dataset_spec(path: str | Path, overrides: dict[str, Any] | None = None)
     if not scene_path.is_file():
         raise SceneError([Problem("scene", spec.scene, f"no such scene file (looked for {scene_path})")], source=str(path))
     base = load_scene(scene_path)
+    if spec.rod_kinematics == "first_order":
+        base = base.with_values(FIRST_ORDER_RODS)
     if base.load is None:
         raise SceneError([Problem("scene", spec.scene, "the base scene needs a [load] (its friction is the screw's)")], source=str(path))
     if spec.chain == "batched":  # what mlsim.dataset.batched runs (BatchedChain.from_scene would refuse it in every worker)
