@@ -29,7 +29,10 @@ all of it, by a geometrically exact rod per rod:
 The rods' section: the layered round section (E A, E I, G J summed over the layers, shear
 kappa G A with Cowper's coefficient of the core's Poisson ratio, :func:`layered_section`). It enters
 only through q, the nonlinear part, and through the P-delta moment, so its small-load error (against
-the rod's 3-D FEM) enters the answer times how nonlinear the step is.
+the rod's 3-D FEM) enters the answer times how nonlinear the step is. Where the mesh's rods are
+systematically stiffer or softer sideways than it (beyond their own scatter), its bending and shear
+stiffnesses are identified from them (:func:`stiffened`, :func:`fem.rod_error.identified_stiffness_scale`;
+fem.quasistatic does it once the contact operator is built): the tiny scene's 2.5 mm mesh, 5 % stiffer.
 
 Stresses: the linear body's under f + f_pd, plus in each loaded rod Saint-Venant's recovery of the
 difference between the bent rod's section resultants (in the section's own frame) and the linear
@@ -49,9 +52,9 @@ their solves (``fidelity.solve.rod_coupling``):
   each touching point carries its round's force f_k and a spring of the contact's penalty to where the round
   put it. At the rounds' fixed point the rods sit there and the springs carry nothing, so the answer is the
   dead-load one; before it, the springs hold what the contact holds, and a rod pressed past its free Euler
-  load by a face that grips its tip stands: the tiny scene's flat press at 1 x is 1.9 / 1.4 / 1.5 % off the
-  nonlinear tier (rod-base von Mises, force, tip displacement), and the screw scene 2.9 / 2.4 / 5.0 % (photons
-  2.2 %). The springs' pull enters the linear rod and the P-delta moment as its resultant about the bent rod's
+  load by a face that grips its tip stands: the tiny scene's flat press at 1 x is 1.4 / 1.5 / 1.6 % off the
+  nonlinear tier (rod-base von Mises, force, tip displacement; solve stage 22), and the screw scene 2.8 / 2.3 / 4.8 %
+  (photons 2.2 %). The springs' pull enters the linear rod and the P-delta moment as its resultant about the bent rod's
   tip (:meth:`_rod_answers`); the rounds are under-relaxed (``round_relaxation``) to ``round_rtol`` of their residual. On
   the default demo 6.6 / 5.8 / 5.7 % off on one mesh realisation, 11.4 / 4.7 / 21.6 % on another, where after
   the second release step three rods stay bent against the face by friction (the reference lets go; the tip
@@ -85,12 +88,15 @@ About 690 lines: the rods' batched solve, the contact rounds' interface (q, the 
 fields' corrections (vertices, Saint-Venant's stresses) all read the same per-rod padded points, attachments, unit
 responses and answers that :class:`CosseratKinematics` keeps; the error estimate, which only reads them, is
 :mod:`fem.rod_error`.
-Tiny scene's press and slide against the nonlinear tier (docs/stages/solve.md): 2.0 / 2.3 / 2.0 %
-on rod-base von Mises, per-rod force and tip displacement on the tests' shipped mesh (tests/test_rod_exact.py;
-3.9 / 6.0 / 5.5 % on another mesh realisation of the scene at stage 17).
+Tiny scene's press and slide against the nonlinear tier (docs/stages/solve.md): 2.8 / 1.5 / 1.5 %
+on rod-base von Mises, per-rod force and tip displacement on the tests' shipped mesh (tests/test_rod_exact.py,
+solve stage 22; 2.2 / 3.3 / 3.0 % on another mesh realisation of the scene, 3.6 / 5.7 / 5.2 % there before the
+section was identified from the mesh's rods).
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import scipy.sparse as sp
@@ -99,7 +105,7 @@ from fem import cosserat_dynamics as cd
 from fem import cosserat_rod as cr
 from fem.rod_kinematics import RodSections, _face_rotation_rows, resultant_change
 
-__all__ = ["SEGMENTS", "layered_section", "root_observation", "attachments", "CosseratKinematics"]
+__all__ = ["SEGMENTS", "layered_section", "stiffened", "root_observation", "attachments", "CosseratKinematics"]
 
 #: the rods' axial law: the nonlinear tier's material is neo-Hookean, and the default demo's flat punch
 #: compresses the rods by about 11 %, where that law is 12.9 % stiffer than the linear one
@@ -140,6 +146,12 @@ def layered_section(radius_m: float, height_m: float, young_pa, poisson, thickne
     ei = float(np.sum(E * inertia))
     return cr.RodSection(height_m, float(np.sum(E * area)), circular_shear_coefficient(float(nu[-1])) * float(np.sum(G * area)),
                          (ei, ei), float(np.sum(G * 2.0 * inertia)), axial_law)
+
+
+def stiffened(section: cr.RodSection, scale: float) -> cr.RodSection:
+    """``section`` with its bending and shear stiffnesses times ``scale`` (axial and torsion kept): the section
+    identified from the mesh's rods' lateral tip compliance (:func:`fem.rod_error.identified_stiffness_scale`)."""
+    return dataclasses.replace(section, shear_n=section.shear_n * scale, bending_n_m2=tuple(b * scale for b in section.bending_n_m2))
 
 
 def root_observation(points: np.ndarray, sections: RodSections, tol: float = 1e-7) -> sp.csr_matrix:
