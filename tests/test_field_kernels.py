@@ -116,3 +116,26 @@ def test_adding_into_columns_rounds_as_numpys_fancy_index_add(dtype):
     finally:
         numba.set_num_threads(threads)
     assert not np.array_equal(expect[:, cols], out0[:, cols])  # (the add did something)
+
+
+@pytest.mark.parametrize("layout", ["rows", "contiguous"])
+def test_the_stress_invariants_are_numpys_bit_for_bit(layout):
+    """fem.fields.von_mises_and_energy against von_mises and strain_energy_density in float64
+    rounded to float32 (how an episode made them before): the reduced tier's transposed view of
+    its (6 T, U) rows and a C-ordered array, per-tet and scalar Lame parameters, zero stress."""
+    from fem import fields
+
+    rng = np.random.default_rng(7)
+    U, T = 9, 1013
+    rows = (rng.standard_normal((6 * T, U)) * 10.0 ** rng.uniform(-2, 6, (6 * T, 1))).astype(np.float32)
+    rows[:6] = 0.0
+    stress = rows.T.reshape(U, 6, T)
+    if layout == "contiguous":
+        stress = np.ascontiguousarray(stress)
+    for lam, mu in ((rng.uniform(1e5, 1e8, T), rng.uniform(1e4, 1e6, T)), (2.0e6, 4.0e5)):
+        vm, sed = fields.von_mises_and_energy(stress, lam, mu)
+        sigma = np.moveaxis(stress, 1, 0)
+        assert vm.tobytes() == fields.von_mises(sigma).astype(np.float32).tobytes()
+        assert sed.tobytes() == fields.strain_energy_density(sigma, lam, mu).astype(np.float32).tobytes()
+    with pytest.raises(ValueError, match="float32"):
+        fields.von_mises_and_energy(stress.astype(float), lam, mu)
