@@ -118,3 +118,17 @@ def stress_invariants(stress, lam, mu, vm, sed):
             ss = a * a + b * b + c * c + 2.0 * (s3 * s3 + s4 * s4 + s5 * s5)
             vm[u, t] = np.float32(np.sqrt(1.5 * ss))
             sed[u, t] = np.float32(ss / four_mu + tr * tr / eighteen_bulk)
+
+
+@njit(cache=True)
+def gather_columns(rows, cols, out):
+    """out[s, i] = rows[i, cols[s]] in place: rows (n, U) row-major, cols (S,) in 0..U-1, out (S, n).
+
+    An episode's per-step fields from its distinct loads' (the reduced tier recovers them as
+    (6 T, U) and (3 P, U) rows): numpy's ``rows.T[cols]`` gathers from the transposed view one
+    strided element at a time (6 ms of a screw-scene episode for the stresses); here each row of
+    ``rows`` is read once, contiguously. A copy: the same bits."""
+    n, S = rows.shape[0], cols.shape[0]
+    for i in range(n):
+        for s in range(S):
+            out[s, i] = rows[i, cols[s]]

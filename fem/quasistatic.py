@@ -438,6 +438,18 @@ def reduced_fields_of(reduced: "ReducedModel", keep: np.ndarray, rod: np.ndarray
 
 
 # ------------------------------------------------------------------------------------ an episode
+def _by_frame(a: np.ndarray, frame_of: np.ndarray) -> np.ndarray:
+    """a[frame_of] (S, ...) of an episode's fields a (U, ...) by distinct load; read row by row
+    (fem.field_kernels.gather_columns) where a is the transposed view of (n, U) rows that the
+    reduced tier's recovery makes, numpy's fancy index otherwise. The same values either way."""
+    rows = a.reshape(len(a), -1).T
+    if not (rows.flags.c_contiguous and np.may_share_memory(rows, a)):
+        return a[frame_of]
+    out = np.empty((len(frame_of),) + a.shape[1:], dtype=a.dtype)
+    field_kernels.gather_columns(rows, np.ascontiguousarray(frame_of, dtype=np.int64), out.reshape(len(frame_of), -1))
+    return out
+
+
 def _pose(state: trajectory.IndenterState) -> Pose:
     return Pose(tuple(state.position_m), state.yaw_rad)
 
@@ -814,7 +826,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     lam_t, mu_t = (body.lam, body.mu) if body is not None else (reduced.lam, reduced.mu)
     vm, sed = fields.von_mises_and_energy(stress, lam_t, mu_t)
     vm, sed = vm[frame_of], sed[frame_of]
-    stress, disp = stress[frame_of], disp[frame_of]
+    stress, disp = _by_frame(stress, frame_of), _by_frame(disp, frame_of)
     on_rod = rod >= 0
     rod_force = np.zeros((S, n_rods, 3))
     np.add.at(rod_force, (slice(None), rod[on_rod]), forces[:, on_rod])

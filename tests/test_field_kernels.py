@@ -139,3 +139,22 @@ def test_the_stress_invariants_are_numpys_bit_for_bit(layout):
         assert sed.tobytes() == fields.strain_energy_density(sigma, lam, mu).astype(np.float32).tobytes()
     with pytest.raises(ValueError, match="float32"):
         fields.von_mises_and_energy(stress.astype(float), lam, mu)
+
+
+def test_fields_by_frame_are_numpys_gather():
+    """fem.quasistatic._by_frame: an episode's per-step fields from its distinct loads' (issue 40),
+    compiled on the reduced tier's transposed rows and numpy's fancy index on any other layout,
+    the same bytes as a[frame_of]."""
+    from fem.quasistatic import _by_frame
+
+    rng = np.random.default_rng(2)
+    U, T = 7, 301
+    rows = rng.standard_normal((6 * T, U)).astype(np.float32)
+    view = rows.T.reshape(U, 6, T)
+    frame_of = np.array([0, 0, 1, 3, 3, 3, 6, 2, 5, 4, 4])
+    for a in (view, np.ascontiguousarray(view), rows[: 3 * T].T.reshape(U, -1, 3)):
+        got = _by_frame(a, frame_of)
+        assert got.shape == (len(frame_of),) + a.shape[1:] and got.tobytes() == a[frame_of].tobytes()
+    out = np.empty((len(frame_of), 6 * T), np.float32)
+    field_kernels.gather_columns(rows, frame_of, out)
+    assert out.tobytes() == np.ascontiguousarray(rows.T[frame_of]).tobytes()
