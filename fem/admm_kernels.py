@@ -29,7 +29,12 @@ BALANCE_RATIO = 3.0  # ... when one residual exceeds the other this many times
 MAX_RUNG = 24
 
 
-@njit(cache=True)
+# numpy's error model on every kernel but _dot (issue 40): numba's default adds a zero check to each
+# division (x / rho, the cone's scale, the Cholesky pivots), which keeps the loops around them from
+# vectorising; the arithmetic is the same (an ADMM episode's forces, the same bits), only a division
+# by zero would give inf or NaN instead of raising. _dot keeps its own flags: with reassoc allowed, a
+# newly vectorised loop could sum in another order.
+@njit(cache=True, error_model="numpy")
 def _project_point(v0, v1, v2, n0, n1, n2, mu):
     vn = v0 * n0 + v1 * n1 + v2 * n2
     t0, t1, t2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
@@ -43,7 +48,7 @@ def _project_point(v0, v1, v2, n0, n1, n2, mu):
     return a * n0 + scale * t0, a * n1 + scale * t1, a * n2 + scale * t2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def project_cones(v, n, mu):
     """:func:`fem.contact_admm.project_cone`: v (m, 3) projected onto the cones about the unit normals n (m, 3)."""
     out = np.empty_like(v)
@@ -52,7 +57,7 @@ def project_cones(v, n, mu):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def de_saxce(sigma, n, mu):
     """:func:`fem.contact_admm.de_saxce`: mu |sigma_T| n (m, 3), in :func:`_step`'s arithmetic."""
     out = np.empty_like(sigma)
@@ -65,7 +70,7 @@ def de_saxce(sigma, n, mu):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rod_end(rod, start):
     """One past the last point of the rod that starts at ``start`` (the points come rod by rod)."""
     end = start
@@ -74,7 +79,7 @@ def _rod_end(rod, start):
     return end
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
     """(G + rho I)^-1 r, r (m, 3). EIGEN (:class:`fem.contact_admm.DenseDelassus`): Q diag(d_inv) Q^T r,
     ``inverse`` = Q, d_inv = 1 / (lambda + rho). ROD_BLOCKS (:class:`fem.contact_admm.RodBlockDelassus`,
@@ -119,7 +124,7 @@ def solve(mode, inverse, K, Y, d_inv, rod, n_rods, r):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _step(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, y2, z2, s2):
     """One ADMM map (y, z, s) -> (y2, z2, s2) at rho; returns (primal, dual, max |y2|) in N."""
     m = b.shape[0]
@@ -152,7 +157,7 @@ def _step(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, y2, z
     return primal, dual, y_max
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _balance(it, primal, dual):
     """Residual balancing (every BALANCE_EVERY iterations): RUNG_UP, RUNG_DOWN, or -1."""
     if it % BALANCE_EVERY == 0:
@@ -163,7 +168,7 @@ def _balance(it, primal, dual):
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def run(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, it0, max_iterations, rtol, f_scale):
     """ADMM iterations it0 + 1 .. max_iterations at one rho, in place on y (forces), z (multipliers)
     and s (De Saxce's correction), all (m, 3).
@@ -186,7 +191,7 @@ def run(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, it0, ma
     return BOUND, it, primal, dual, tol
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _spd_solve(A, k, rhs):
     """x with (A[:k, :k] + 1e-12 trace I) x = rhs by Cholesky, in place on a copy (k is at most a few:
     LAPACK's call costs more than the arithmetic). The tiny Tikhonov term keeps the normal equations
@@ -228,7 +233,7 @@ def _dot(a, b):
     return acc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def run_anderson(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s, it0, max_iterations, rtol, f_scale, memory, rejections,
                  max_rejections):
     """:func:`run` with Anderson acceleration (type II, ``memory`` last differences) of the ADMM map,
@@ -346,7 +351,7 @@ def run_anderson(mode, inverse, K, Y, d_inv, rod, n_rods, rho, b, n, mu, y, z, s
     return BOUND, it, primal, dual, tol
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rod_block_product(C_flat, H, rod, n_rods, f):
     """blockdiag_a(C_aa) f + S H S^T f for points rod by rod (:class:`fem.contact_admm.RodBlockDelassus`'s
     elastic part): C_flat the blocks (3 m_a, 3 m_a) one after the other, row-major; f (m, 3)."""

@@ -100,3 +100,23 @@ def strain_energy_density(sigma: np.ndarray, lam, mu) -> np.ndarray:
     tr, ss = _trace_and_deviator_square(sigma)
     bulk = np.asarray(lam) + 2.0 * np.asarray(mu) / 3.0
     return ss / (4.0 * np.asarray(mu)) + tr**2 / (18.0 * bulk)
+
+
+def von_mises_and_energy(stress: np.ndarray, lam, mu) -> tuple[np.ndarray, np.ndarray]:
+    """(von Mises stress, strain energy density), each (U, T) float32, of an episode's stresses
+    (U, 6, T) (float32, any strides) for Lame parameters (T,) or scalars: :func:`von_mises` and
+    :func:`strain_energy_density` in float64 rounded to float32, bit for bit, in one compiled pass
+    (:func:`fem.field_kernels.stress_invariants`)."""
+    from fem.field_kernels import stress_invariants
+
+    stress = np.asarray(stress)
+    if stress.ndim != 3 or stress.shape[1] != 6:
+        raise ValueError(f"stress of shape {stress.shape}: must be (loads, 6, tets)")
+    if stress.dtype != np.float32:
+        raise ValueError(f"stress of dtype {stress.dtype}: must be float32 (the episode's stored stresses)")
+    U, _, T = stress.shape
+    lam_t = np.ascontiguousarray(np.broadcast_to(np.asarray(lam, dtype=float), (T,)))
+    mu_t = np.ascontiguousarray(np.broadcast_to(np.asarray(mu, dtype=float), (T,)))
+    vm, sed = np.empty((U, T), np.float32), np.empty((U, T), np.float32)
+    stress_invariants(stress, lam_t, mu_t, vm, sed)
+    return vm, sed

@@ -438,6 +438,18 @@ def reduced_fields_of(reduced: "ReducedModel", keep: np.ndarray, rod: np.ndarray
 
 
 # ------------------------------------------------------------------------------------ an episode
+def _by_frame(a: np.ndarray, frame_of: np.ndarray) -> np.ndarray:
+    """a[frame_of] (S, ...) of an episode's fields a (U, ...) by distinct load; read row by row
+    (fem.field_kernels.gather_columns) where a is the transposed view of (n, U) rows that the
+    reduced tier's recovery makes, numpy's fancy index otherwise. The same values either way."""
+    rows = a.reshape(len(a), -1).T
+    if not (rows.flags.c_contiguous and np.may_share_memory(rows, a)):
+        return a[frame_of]
+    out = np.empty((len(frame_of),) + a.shape[1:], dtype=a.dtype)
+    field_kernels.gather_columns(rows, np.ascontiguousarray(frame_of, dtype=np.int64), out.reshape(len(frame_of), -1))
+    return out
+
+
 def _pose(state: trajectory.IndenterState) -> Pose:
     return Pose(tuple(state.position_m), state.yaw_rad)
 
@@ -818,11 +830,11 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
     timings["fields"] = time.perf_counter() - t0
     # each step's share of the field recovery: the distinct loads share it, a repeat is a copy
     timings["fields_step_ms"] = np.where(np.isin(np.arange(S), first), 1e3 * timings["fields"] / U, 0.0).tolist()
-    stress = stress.astype(np.float32)
+    stress = stress.astype(np.float32, copy=False)  # (the reduced tier's: a view of its float32 rows, copied below by frame)
     lam_t, mu_t = (body.lam, body.mu) if body is not None else (reduced.lam, reduced.mu)
-    vm = fields.von_mises(np.moveaxis(stress, 1, 0)).astype(np.float32)[frame_of]
-    sed = fields.strain_energy_density(np.moveaxis(stress, 1, 0), lam_t, mu_t).astype(np.float32)[frame_of]
-    stress, disp = stress[frame_of], disp[frame_of]
+    vm, sed = fields.von_mises_and_energy(stress, lam_t, mu_t)
+    vm, sed = vm[frame_of], sed[frame_of]
+    stress, disp = _by_frame(stress, frame_of), _by_frame(disp, frame_of)
     on_rod = rod >= 0
     rod_force = np.zeros((S, n_rods, 3))
     np.add.at(rod_force, (slice(None), rod[on_rod]), forces[:, on_rod])
@@ -857,7 +869,7 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
                 "episode's own field; it came within 1.1-1.2 x of the measured error on a flat punch and a rolled cylinder, and "
                 'overstates past the linear regime); use fidelity.solve.tier = "nonlinear" for this load, or a smaller one')
     timings["per_frame_ms"] = 1e3 * (timings["contact_steps"] + timings["fields"]) / grid.n_frames
-    episode = Episode(settings.tier, settings.element, steps, grid.frame_step, pose_arr, target, stress, vm, sed, disp.astype(np.float32),
+    episode = Episode(settings.tier, settings.element, steps, grid.frame_step, pose_arr, target, stress, vm, sed, disp.astype(np.float32, copy=False),
                       rod_force, total, -total[:, 2], reaction, iters, stick, mesh.points, mesh.tets, mesh.tet_rod, mesh.layer_fraction,
                       timings)
     _check_finite(episode)

@@ -281,6 +281,12 @@ def first_order_force_error(sections: RodSections, points: np.ndarray, du: np.nd
     tip_z = sections.base_z_m + sections.length_m
     tops = [v[points[v, 2] >= tip_z - 1e-9] for v in sections.vertices]
     rods = sections.rods
+    # each rod's tip face's mean vertical displacement: numpy's mean of the face's values (its pairwise
+    # sum over a contiguous slice, over the count) without ndarray.mean's per-call overhead (a mean
+    # over an axis of all steps at once sums in another order: other bits)
+    top_all = np.concatenate(tops) if tops else np.zeros(0, dtype=np.int64)
+    top_end = np.cumsum([len(t) for t in tops])
+    top_start = top_end - np.array([len(t) for t in tops], dtype=top_end.dtype)
     num = 0.0
     for u in range(len(du)):
         Fz = -F[u, rods, 2]
@@ -288,7 +294,8 @@ def first_order_force_error(sections: RodSections, points: np.ndarray, du: np.nd
             continue
         theta, _ = sections.split(sections.O @ du[u].ravel())
         missed = axis_drop(theta[:, :-1], sections.dz) + 0.5 * (theta[:, -1, 0] ** 2 + theta[:, -1, 1] ** 2) * radius_m
-        c = np.array([-du[u, t, 2].mean() for t in tops])
+        z = du[u, top_all, 2]
+        c = np.array([-(np.add.reduce(z[a:b]) / (b - a)) for a, b in zip(top_start.tolist(), top_end.tolist())])
         dF = np.where((Fz > 0) & (c > 0), Fz * missed / np.where(c > 0, c, 1.0), 0.0)
         num += w_u[u] * float(np.sum(dF**2))
     den = float(np.einsum("u,urc->", w_u, F**2))

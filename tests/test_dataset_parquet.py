@@ -69,3 +69,20 @@ def test_the_same_store_gives_the_same_bytes_and_an_empty_one_is_refused(dataset
     store.create_or_open(empty, {}, "x")
     with pytest.raises(ValueError, match="no complete episode"):
         export_parquet(empty)
+
+
+def test_the_export_does_not_import_torch(dataset):
+    """The driver exports the table at the end of every run: it reads the episode ids from the store
+    (mlsim.dataset.store.episode_ids), not from the reader, whose torch import cost it 1.6 s of CPU
+    (issue 40). A fresh process exports without importing torch; the reader's ids are the store's."""
+    import subprocess
+    import sys
+
+    from mlsim.dataset import reader
+
+    path, _ = dataset
+    code = ("import sys; from mlsim.dataset.parquet import export_parquet; "
+            f"export_parquet({str(path)!r}); print('torch' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "False"
+    assert reader.episode_ids is store.episode_ids and store.episode_ids(path) == ["pull_00001", "push_00000", "push_00001"]

@@ -390,3 +390,21 @@ def test_the_patches_from_the_cache_are_the_built_ones_bit_for_bit(tiny_mesh, tm
     for a, b in zip(located, cache.fetch(PATCHES_IN_MESH, stored)):
         assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
     assert len(located[0]) == len(built.vertices_m) and np.allclose(located[1].sum(axis=1), 1.0)
+
+
+def test_per_rod_sums_are_each_frames_bincount_bit_for_bit():
+    """EmissionResult.per_rod (one compiled pass, issue 40) against numpy's bincount per frame, the
+    base's patches (rod -1) in the last column."""
+    from types import SimpleNamespace
+
+    from mlsim.emission import EmissionResult
+
+    rng = np.random.default_rng(11)
+    rod = rng.integers(-1, 5, 3001)
+    photons = rng.lognormal(30.0, 3.0, (17, len(rod)))
+    res = EmissionResult(photons, np.zeros((17, 2)), SimpleNamespace(rod=rod), None)
+    idx = np.where(rod >= 0, rod, 5)
+    expect = np.stack([np.bincount(idx, weights=photons[f], minlength=6) for f in range(17)])
+    assert res.per_rod(5).tobytes() == expect.tobytes()
+    with pytest.raises(ValueError, match="rods"):
+        res.per_rod(3)

@@ -116,3 +116,45 @@ def test_adding_into_columns_rounds_as_numpys_fancy_index_add(dtype):
     finally:
         numba.set_num_threads(threads)
     assert not np.array_equal(expect[:, cols], out0[:, cols])  # (the add did something)
+
+
+@pytest.mark.parametrize("layout", ["rows", "contiguous"])
+def test_the_stress_invariants_are_numpys_bit_for_bit(layout):
+    """fem.fields.von_mises_and_energy against von_mises and strain_energy_density in float64
+    rounded to float32 (how an episode made them before): the reduced tier's transposed view of
+    its (6 T, U) rows and a C-ordered array, per-tet and scalar Lame parameters, zero stress."""
+    from fem import fields
+
+    rng = np.random.default_rng(7)
+    U, T = 9, 1013
+    rows = (rng.standard_normal((6 * T, U)) * 10.0 ** rng.uniform(-2, 6, (6 * T, 1))).astype(np.float32)
+    rows[:6] = 0.0
+    stress = rows.T.reshape(U, 6, T)
+    if layout == "contiguous":
+        stress = np.ascontiguousarray(stress)
+    for lam, mu in ((rng.uniform(1e5, 1e8, T), rng.uniform(1e4, 1e6, T)), (2.0e6, 4.0e5)):
+        vm, sed = fields.von_mises_and_energy(stress, lam, mu)
+        sigma = np.moveaxis(stress, 1, 0)
+        assert vm.tobytes() == fields.von_mises(sigma).astype(np.float32).tobytes()
+        assert sed.tobytes() == fields.strain_energy_density(sigma, lam, mu).astype(np.float32).tobytes()
+    with pytest.raises(ValueError, match="float32"):
+        fields.von_mises_and_energy(stress.astype(float), lam, mu)
+
+
+def test_fields_by_frame_are_numpys_gather():
+    """fem.quasistatic._by_frame: an episode's per-step fields from its distinct loads' (issue 40),
+    compiled on the reduced tier's transposed rows and numpy's fancy index on any other layout,
+    the same bytes as a[frame_of]."""
+    from fem.quasistatic import _by_frame
+
+    rng = np.random.default_rng(2)
+    U, T = 7, 301
+    rows = rng.standard_normal((6 * T, U)).astype(np.float32)
+    view = rows.T.reshape(U, 6, T)
+    frame_of = np.array([0, 0, 1, 3, 3, 3, 6, 2, 5, 4, 4])
+    for a in (view, np.ascontiguousarray(view), rows[: 3 * T].T.reshape(U, -1, 3)):
+        got = _by_frame(a, frame_of)
+        assert got.shape == (len(frame_of),) + a.shape[1:] and got.tobytes() == a[frame_of].tobytes()
+    out = np.empty((len(frame_of), 6 * T), np.float32)
+    field_kernels.gather_columns(rows, frame_of, out)
+    assert out.tobytes() == np.ascontiguousarray(rows.T[frame_of]).tobytes()

@@ -187,3 +187,17 @@ def test_bad_input_is_refused_with_the_fix():
         render_frames(sheet, e, "deformed", transport=full, raster=raster)
     with pytest.raises(ValueError, match="DirectRaster"):
         render_frames(sheet, e, "deformed", transport=trace_transport(sheet, spp=1, seed=0, first_depth=rp.DIRECT_DEPTH))
+
+
+def test_frames_read_where_they_lie_are_the_gathered_frames_images():
+    """DirectRaster.images(V, e, frames=k) (the render's lit frames, issue 40) is images(V[k], e)
+    bit for bit, in any order and with repeats; frames outside V are refused."""
+    g, V, _, sheet = small_sheet(32)
+    raster = direct_raster(sheet, 2)
+    moved = np.stack([bent(g, V, d) for d in (0.0, 0.5e-3, 1.0e-3, 1.5e-3)])
+    rng = np.random.default_rng(5)
+    frames = np.array([3, 1, 1, 0])
+    e = (rng.uniform(0.0, 1e15, (len(frames), len(V)))).astype(np.float32)
+    np.testing.assert_array_equal(raster.images(moved, e, frames=frames), raster.images(moved[frames], e))
+    with pytest.raises(ValueError, match="frames"):
+        raster.images(moved, e, frames=np.array([0, 1, 2, 4]))

@@ -43,3 +43,34 @@ def test_the_ml_channel_factors_are_made_once_per_scene_and_handed_out_as_copies
     np.testing.assert_array_equal(ml_channel_factors(scene), channel_factors_of(scene, spectra.zns_cu_emission_sd()))
     thicker = scene.with_values({"optics.acrylic_thickness_mm": 2 * scene.optics.acrylic_thickness_mm})
     assert np.all(ml_channel_factors(thicker) < ml_channel_factors(scene))  # more acrylic absorbs more, in every channel
+
+
+def test_the_camera_stage_takes_the_channel_factors_from_the_cache(tmp_path):
+    """mlsim.render.stage.ml_channel_factors_cached (issue 40: a dataset worker no longer imports
+    colour-science for three numbers): the bits of ml_channel_factors, stored once per sensor and
+    read back from disk in a fresh process without importing colour; a copy per call; another
+    sensor's optics get their own entry."""
+    import subprocess
+    import sys
+
+    from mlsim.pipeline import Cache
+    from mlsim.render.stage import ML_CHANNEL_FACTORS, ml_channel_factors_cached
+    from mlsim.stage import RunContext
+
+    path = Path(__file__).resolve().parents[1] / "scenes" / "mavig_tiny.toml"
+    scene = load_scene(path)
+    ctx = RunContext(scene, Cache(tmp_path), None, False, lambda _m: None)
+    k = ml_channel_factors_cached(scene, ctx)
+    assert k.tobytes() == ml_channel_factors(scene).tobytes()
+    k[:] = 0.0
+    assert ml_channel_factors_cached(scene, ctx).tobytes() == ml_channel_factors(scene).tobytes()
+    assert len(list((tmp_path / ML_CHANNEL_FACTORS.name).iterdir())) == 1
+    thicker = scene.with_values({"optics.acrylic_thickness_mm": 2 * scene.optics.acrylic_thickness_mm})
+    assert ml_channel_factors_cached(thicker, ctx).tobytes() == ml_channel_factors(thicker).tobytes()
+    assert len(list((tmp_path / ML_CHANNEL_FACTORS.name).iterdir())) == 2
+    code = ("import sys; from mlsim.scene import load_scene; from mlsim.pipeline import Cache; from mlsim.stage import RunContext; "
+            "from mlsim.render.stage import ml_channel_factors_cached; "
+            f"s = load_scene({str(path)!r}); k = ml_channel_factors_cached(s, RunContext(s, Cache({str(tmp_path)!r}), None, False, print)); "
+            "print(k.tobytes().hex(), 'colour' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.split()[-2:] == [ml_channel_factors(scene).tobytes().hex(), "False"]

@@ -112,6 +112,40 @@ def test_the_first_order_force_error_estimate_of_a_tilted_compressed_rod(tiny_me
     assert rk.first_order_force_error(sec, mesh.points, du, np.zeros_like(F), a) == 0.0
 
 
+def _first_order_force_error_per_step(sections, points, du, rod_force_n, radius_m, weights):
+    """first_order_force_error as it was before issue 40 (each step's tip means one by one): the reference."""
+    du, F, w_u = np.asarray(du, dtype=float), np.asarray(rod_force_n, dtype=float), np.asarray(weights, dtype=float)
+    tip_z = sections.base_z_m + sections.length_m
+    tops = [v[points[v, 2] >= tip_z - 1e-9] for v in sections.vertices]
+    num = 0.0
+    for u in range(len(du)):
+        Fz = -F[u, sections.rods, 2]
+        if not np.any(Fz > 0) or w_u[u] == 0:
+            continue
+        theta, _ = sections.split(sections.O @ du[u].ravel())
+        missed = rk.axis_drop(theta[:, :-1], sections.dz) + 0.5 * (theta[:, -1, 0] ** 2 + theta[:, -1, 1] ** 2) * radius_m
+        c = np.array([-du[u, t, 2].mean() for t in tops])
+        dF = np.where((Fz > 0) & (c > 0), Fz * missed / np.where(c > 0, c, 1.0), 0.0)
+        num += w_u[u] * float(np.sum(dF**2))
+    den = float(np.einsum("u,urc->", w_u, F**2))
+    return float(np.sqrt(num / den)) if den > 0 else 0.0
+
+
+def test_the_first_order_force_error_is_its_per_step_form_bit_for_bit(tiny_mesh):
+    """The tips' means taken over all steps at once (issue 40) give the estimate's bits."""
+    scene, _, mesh, _ = tiny_mesh
+    base_z, tip_z = scene.sensor.base.thickness_mm * 1e-3, qs.tip_height_m(mesh)
+    n_rods = int(mesh.tet_rod.max()) + 1
+    sec = rk.rod_sections(mesh.points, mesh.tets, mesh.tet_rod, np.arange(n_rods), base_z, tip_z)
+    rng = np.random.default_rng(3)
+    du = rng.standard_normal((7, mesh.n_points, 3)) * 1e-4
+    F = rng.standard_normal((7, n_rods, 3))
+    F[..., 2] -= 0.5  # most rods pressed
+    w = rng.integers(0, 4, 7).astype(float)
+    got = rk.first_order_force_error(sec, mesh.points, du, F, 1e-3, w)
+    assert got > 0 and got == _first_order_force_error_per_step(sec, mesh.points, du, F, 1e-3, w)
+
+
 def test_the_fields_correction_is_q_at_the_tip_face(tiny_mesh, body, rod0_tip):
     _, _, mesh, _ = tiny_mesh
     kin, points, _, f = rod0_tip

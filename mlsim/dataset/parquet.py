@@ -63,7 +63,7 @@ def export_parquet(out_dir: str | Path) -> Path:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from mlsim.dataset.reader import episode_ids
+    from mlsim.dataset.store import episode_ids
     from mlsim.io import atomic_bytes
 
     out = Path(out_dir)

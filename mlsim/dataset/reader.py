@@ -14,18 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from mlsim.dataset import store
+from mlsim.dataset.store import episode_ids
 
 __all__ = ["load_episodes", "episode_ids", "EpisodeDataset"]
 
 _DEFAULT_ARRAYS = ("dllm_features", "dllm_event", "frame_label")
-
-
-def episode_ids(path: str | Path) -> list[str]:
-    """The ids of the complete episodes in a dataset directory, sorted."""
-    path = Path(path)
-    if not (path / store.STORE_NAME / "zarr.json").is_file():
-        raise FileNotFoundError(f"{path} holds no dataset (no {store.STORE_NAME}); make one with: mlsim dataset SPEC --out {path}")
-    return sorted(store.complete_episodes(path))
 
 
 def load_episodes(path: str | Path, arrays: tuple[str, ...] | None = _DEFAULT_ARRAYS) -> list[dict[str, Any]]:

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["STORE_NAME", "EPISODE_ARRAYS", "create_or_open", "complete_episodes", "write_episode", "read_episode", "read_attrs",
+__all__ = ["STORE_NAME", "EPISODE_ARRAYS", "create_or_open", "complete_episodes", "episode_ids", "write_episode", "read_episode", "read_attrs",
            "DatasetMismatch", "FAILURES_NAME", "read_failures", "write_failures"]
 
 STORE_NAME = "dataset.zarr"
@@ -96,10 +96,18 @@ def complete_episodes(out_dir: str | Path) -> set[str]:
     return {p.name for p in episodes.iterdir() if p.is_dir() and (p / "zarr.json").is_file() and not p.name.startswith(".")}
 
 
+def episode_ids(path: str | Path) -> list[str]:
+    """The ids of the complete episodes in a dataset directory, sorted. (Here rather than in
+    :mod:`mlsim.dataset.reader`, which imports torch: the driver's Parquet export needs the ids
+    only, and importing torch cost it 1.6 s of CPU at the end of every run.)"""
+    path = Path(path)
+    if not (path / STORE_NAME / "zarr.json").is_file():
+        raise FileNotFoundError(f"{path} holds no dataset (no {STORE_NAME}); make one with: mlsim dataset SPEC --out {path}")
+    return sorted(complete_episodes(path))
+
+
 def write_episode(out_dir: str | Path, episode_id: str, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> Path:
     """Write one episode's group under a temporary name, then rename it into place (atomic)."""
-    import zarr
-
     out = Path(out_dir)
     final = out / STORE_NAME / "episodes" / episode_id
     if final.exists():
@@ -108,20 +116,46 @@ def write_episode(out_dir: str | Path, episode_id: str, arrays: dict[str, np.nda
     partial.mkdir(exist_ok=True)
     tmp = partial / f"{episode_id}.{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
+    for name in arrays:
+        if name not in EPISODE_ARRAYS:
+            raise ValueError(f'"{name}" is not an episode array; choose one of: {", ".join(EPISODE_ARRAYS)}')
+    attributes = json.loads(json.dumps(attrs, default=_jsonable))
     try:
-        group = zarr.open_group(str(tmp), mode="w")
-        for name, data in arrays.items():
-            if name not in EPISODE_ARRAYS:
-                raise ValueError(f'"{name}" is not an episode array; choose one of: {", ".join(EPISODE_ARRAYS)}')
-            data = np.ascontiguousarray(data)
-            chunks = (1,) + data.shape[1:] if name == "frames" else data.shape
-            group.create_array(name, data=data, chunks=tuple(max(int(c), 1) for c in chunks))
-        group.attrs.update(json.loads(json.dumps(attrs, default=_jsonable)))
+        _zarr_sync(_write_group(str(tmp), arrays, attributes))
         os.replace(tmp, final)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
+
+
+async def _write_group(path: str, arrays: dict[str, np.ndarray], attributes: dict[str, Any]) -> None:
+    """An episode's group at ``path``: its arrays (one chunk per frame for frames, one chunk for the
+    rest) created and written together, then its attributes in one update. In one pass through
+    Zarr's event loop: the synchronous API's round trip per array and per attribute (each
+    attribute rewrote the group's zarr.json) cost the driver 39 ms of CPU an episode, about 1 ms a
+    frame beside the workers' 8. The same files, byte for byte, as that API's
+    (tests/test_dataset.py)."""
+    import asyncio
+
+    import zarr.api.asynchronous as zarr_async
+
+    group = await zarr_async.open_group(path, mode="w")
+    made = []
+    for name, data in arrays.items():
+        data = np.ascontiguousarray(data)
+        chunks = (1,) + data.shape[1:] if name == "frames" else data.shape
+        made.append(group.create_array(name, data=data, chunks=tuple(max(int(c), 1) for c in chunks)))
+    await asyncio.gather(*made)
+    if attributes:
+        await group.update_attributes(attributes)
+
+
+def _zarr_sync(coroutine):
+    """Run a coroutine on Zarr's event loop thread (the one its synchronous API uses)."""
+    from zarr.core.sync import sync as zarr_sync
+
+    return zarr_sync(coroutine)
 
 
 def read_failures(out_dir: str | Path) -> dict[str, dict[str, str]]:

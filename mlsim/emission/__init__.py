@@ -68,10 +68,13 @@ class EmissionResult:
 
     def per_rod(self, n_rods: int) -> np.ndarray:
         """Photons per second per rod (F, n_rods + 1); the last column is the base between rods."""
-        idx = np.where(self.patches.rod >= 0, self.patches.rod, n_rods)
-        out = np.zeros((len(self.photons_per_s), n_rods + 1))
-        for f in range(len(out)):
-            out[f] = np.bincount(idx, weights=self.photons_per_s[f], minlength=n_rods + 1)
+        from mlsim.emission.kernels import sum_by_index
+
+        idx = np.where(self.patches.rod >= 0, self.patches.rod, n_rods).astype(np.int64)
+        if len(idx) and (idx.min() < 0 or idx.max() > n_rods):
+            raise ValueError(f"patches on rods {idx.min()}..{idx.max()}: the sensor has {n_rods} rods (0..{n_rods - 1}, -1 off them)")
+        out = np.empty((len(self.photons_per_s), n_rods + 1))
+        sum_by_index(np.ascontiguousarray(self.photons_per_s, dtype=np.float64), idx, out)  # each frame's bincount, bit for bit
         return out
 
 

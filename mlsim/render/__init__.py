@@ -164,9 +164,12 @@ def render_frames(sensor_scene: SensorScene, vertex_radiance, tier: str = "trans
         t0 = time.perf_counter()
         if len(todo):
             rest = sensor_scene.rest_vertices_m
-            at = vertices_m[pick] if vertices_m is not None else np.broadcast_to(rest, (len(todo),) + rest.shape)
             e_pick = e[pick]
-            images = transport.apply(e_pick, add_to=raster.images(at, e_pick))
+            if vertices_m is not None:  # the lit frames' vertices read where they lie (no gathered copy)
+                direct = raster.images(vertices_m, e_pick, frames=None if every else todo)
+            else:
+                direct = raster.images(np.broadcast_to(rest, (len(todo),) + rest.shape), e_pick)
+            images = transport.apply(e_pick, add_to=direct)
             if every:
                 out = images
             else:

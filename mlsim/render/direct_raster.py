@@ -183,24 +183,29 @@ class DirectRaster:
             self._order_of = self.faces
         return self._order
 
-    def images(self, vertices_m, radiance) -> np.ndarray:
+    def images(self, vertices_m, radiance, frames=None) -> np.ndarray:
         """Direct-light images (F, H, W) float32 of per-vertex radiance (F, N) on the sheet at
-        vertices_m (F, N, 3) m (the same units as :meth:`mlsim.render.sensor_scene.SensorScene.render`)."""
-        from mlsim.render.kernels import VERTEX_FIELDS, project_frames, rasterise_direct
+        vertices_m (F, N, 3) m (the same units as :meth:`mlsim.render.sensor_scene.SensorScene.render`).
+        ``frames`` (F,) int: the radiance's frames are these frames of vertices_m (any number of
+        frames), read where they lie (the same images as ``images(vertices_m[frames], radiance)``)."""
+        from mlsim.render.kernels import VERTEX_FIELDS, project_frames_at, rasterise_direct
 
         V = np.asarray(vertices_m, dtype=np.float64)
         e = np.ascontiguousarray(radiance, dtype=np.float32)
-        if V.ndim != 3 or V.shape[1:] != (self.n_vertices, 3) or e.shape != V.shape[:2]:
-            raise ValueError(f"vertices_m {V.shape} and radiance {e.shape}: must be (F, {self.n_vertices}, 3) and (F, {self.n_vertices})")
+        frames = np.arange(len(V)) if frames is None else np.asarray(frames, dtype=np.int64)
+        if (V.ndim != 3 or V.shape[1:] != (self.n_vertices, 3) or e.shape != (len(frames), self.n_vertices) or frames.ndim != 1
+                or (len(frames) and not (0 <= frames.min() and frames.max() < len(V)))):
+            raise ValueError(f"vertices_m {V.shape}, radiance {e.shape} and frames {frames.shape}: must be (F, {self.n_vertices}, 3), "
+                             f"(K, {self.n_vertices}) and K frames of the F")
         require_finite(e, "radiance (frames, vertices) to rasterise", RADIANCE_FIX)
         order, number, faces = self.raster_order()
         # per frame and vertex (raster numbering): pixel u, v, depth (along a ray inside the core, z grows), radiance
-        table = np.empty((len(V), len(order), VERTEX_FIELDS))
-        outside, non_finite = project_frames(V, number, e, self.inv_length, self.r2_step_mm2, self.z_step_mm, self.pixel_map, table)
+        table = np.empty((len(frames), len(order), VERTEX_FIELDS))
+        outside, non_finite = project_frames_at(V, frames, number, e, self.inv_length, self.r2_step_mm2, self.z_step_mm, self.pixel_map, table)
         if non_finite:
-            require_finite(V, _VERTICES_WHAT, _VERTICES_FIX)
+            require_finite(V[frames], _VERTICES_WHAT, _VERTICES_FIX)
         if outside:
-            self._raise_outside(outside, V * 1e3)
+            self._raise_outside(outside, V[frames] * 1e3)
         return rasterise_direct(table, faces, self.per_side, self.orientation, self.height_px, self.width_px, self.throughput)
 
 

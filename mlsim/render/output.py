@@ -79,16 +79,18 @@ def noise_seed(scene) -> int:
     return scene.seed if scene.noise_seed is None else scene.noise_seed
 
 
-def expose(scene, render_result, emission_result) -> CameraFrames:
+def expose(scene, render_result, emission_result, channel_factors=None) -> CameraFrames:
     """The camera stage: 8-bit frames of a :class:`mlsim.render.RenderResult` (module docstring),
-    with the ambient lamp's leak (``render_result.ambient``) at its level in each exposure."""
+    with the ambient lamp's leak (``render_result.ambient``) at its level in each exposure.
+    ``channel_factors``: the scene's :func:`mlsim.render.optics.ml_channel_factors` where the caller
+    has them (the camera stage takes them from the cache), else computed here."""
     from fem.geometry import RodArray
     from mlsim.camera import Camera
     from mlsim.render.optics import camera_params, ml_channel_factors
 
     params = camera_params(scene)
     camera = Camera(params)
-    k = ml_channel_factors(scene).astype(np.float32)  # electrons per photon, R G B
+    k = np.asarray(ml_channel_factors(scene) if channel_factors is None else channel_factors).astype(np.float32)  # electrons per photon, R G B
     rng = np.random.default_rng([noise_seed(scene), 0xCA3E7A])  # the camera's own stream
     rad = render_result.radiance
     F, H, W = rad.shape

@@ -182,7 +182,40 @@ def _calibration_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
 def _camera_run(scene: Scene, inputs: dict, ctx: "RunContext"):
     from mlsim.render import output
 
-    return output.expose(scene, inputs["render"], inputs["emission"])
+    return output.expose(scene, inputs["render"], inputs["emission"], channel_factors=ml_channel_factors_cached(scene, ctx))
+
+
+#: the scene fields that the ML light's channel factors read (mlsim.render.optics.ml_channel_factors)
+CHANNEL_FACTOR_FIELDS = ("sensor", "optics", "camera.sensitivity")
+
+
+def _factors_save(result, directory: Path) -> None:
+    import numpy as np
+
+    np.save(directory / "factors.npy", np.asarray(result, dtype=np.float64))
+
+
+def _factors_load(directory: Path):
+    import numpy as np
+
+    return np.load(directory / "factors.npy")
+
+
+# Not a stage of the plan: the camera stage caches the ML light's channel factors through this.
+ML_CHANNEL_FACTORS = Stage(name="ml_channel_factors", doc="electrons per ZnS:Cu photon reaching a pixel, R, G, B (a precompute of the "
+                           "sensor's optics and camera)", reads=(), needs=(), run=lambda *a: None, save=_factors_save, load=_factors_load)
+
+
+def ml_channel_factors_cached(scene: Scene, ctx: "RunContext"):
+    """:func:`mlsim.render.optics.ml_channel_factors` (3,) from the cache: its spectra need
+    colour-science, whose import (with pandas) cost each dataset worker 1.5 s of CPU in its first
+    episode for three numbers that depend on the sensor alone. The same float64 values (saved as
+    .npy), a copy per call."""
+    from mlsim.render.optics import ml_channel_factors
+
+    payload = {"what": "ml_channel_factors", "fields": scene.content_hash(CHANNEL_FACTOR_FIELDS), "version": "1"}
+    return cached_precompute(ctx, ML_CHANNEL_FACTORS, payload, lambda: ml_channel_factors(scene),
+                             "[camera] the ML light's channel factors (cached for this sensor)").copy()
 
 
 def _camera_write(result, out_dir: Path, ctx: "RunContext") -> list[Path]:
