@@ -81,6 +81,9 @@ RENDER_FRAME_S = {"deformed": 3.5e-3, "transport": 1.0e-3}
 # (bench_cost_model, 2026-11-27; README's 18-22 s of bench_deformed had its matrix cached)
 RENDER_PRECOMPUTE_FIXED_S = {"deformed": 8.0, "transport": 6.0, "path": 2.0}
 RENDER_PRECOMPUTE_S_PER_VERTEX = {"deformed": 0.017, "transport": 0.013, "path": 0.0}
+# with the matrix in the cache: loaded, and the deformed tier's raster tables made in-process (0.1-0.3 s): the default
+# demo's render stage took 0.74 s for its 22 frames (make demo, 2026-11-29)
+RENDER_CACHED_MATRIX_S = 0.7
 PATH_S_PER_SAMPLE = 1.0 / (16 * 350 * 350)
 # the transport matrix: 2.61 M entries on the demo at 64 spp (96069d7), 12 bytes each
 TRANSPORT_ENTRIES_PER_PIXEL_SPP = 2.61e6 / (350 * 350 * 64)
@@ -200,7 +203,7 @@ def _emission(scene) -> StageCost:
                      frames=_int(frames))
 
 
-def _render(scene) -> StageCost:
+def _render(scene, precompute_cached: bool = False) -> StageCost:
     frames = _frames(scene)
     r = scene.fidelity.render
     pixels = scene.camera.width_px * scene.camera.height_px
@@ -212,7 +215,12 @@ def _render(scene) -> StageCost:
         memory += TRANSPORT_ENTRIES_PER_PIXEL_SPP * pixels * r.transport_spp * 12
     per_vertex = RENDER_PRECOMPUTE_S_PER_VERTEX[r.tier] * (pixels / (350 * 350)) * (r.transport_spp / 64)
     precompute = RENDER_PRECOMPUTE_FIXED_S[r.tier] + per_vertex * _sheet_vertices(scene)
-    return StageCost("render", memory, precompute + frames * per_frame, frames=_int(frames), note=r.tier)
+    cached = precompute_cached and r.tier in ("transport", "deformed")
+    if cached:
+        # the matrix loaded from the cache (mlsim.render.stage.transport_payload) and the raster's tables made: priced at
+        # the whole precompute, the default demo's render was 90 s where it took 0.74 (make demo, 2026-11-29)
+        precompute = RENDER_CACHED_MATRIX_S
+    return StageCost("render", memory, precompute + frames * per_frame, frames=_int(frames), note=r.tier + (" (its matrix cached)" if cached else ""))
 
 
 def _camera(scene) -> StageCost:
@@ -248,8 +256,9 @@ STAGE_MODELS = {"mesh": _mesh, "solve": _solve, "emission": _emission, "render":
 def stage_cost(scene, stage: str, precompute_cached: bool = False) -> StageCost | None:
     """The expected cost of running ``stage`` on ``scene``; None where no model applies (a stage whose
     cost is negligible or not measured, a scene without the section it needs). Another sensor kind's
-    stages are priced by its ``cost`` hook (None without one). ``precompute_cached``: the solve's
-    load-independent precompute (the reduced tier's model) is in the cache, and is not priced."""
+    stages are priced by its ``cost`` hook (None without one). ``precompute_cached``: the stage's
+    load-independent precompute (the solve's reduced-tier model, the render's matrix) is in the cache, and
+    is not priced."""
     if scene.kind != "ml_rod_array":
         from mlsim.stage import kind
 
@@ -258,4 +267,6 @@ def stage_cost(scene, stage: str, precompute_cached: bool = False) -> StageCost 
     model = STAGE_MODELS.get(stage)
     if model is None or (stage not in ("mesh", "calibration") and scene.load is None):
         return None
-    return _solve(scene, precompute_cached) if stage == "solve" else model(scene)
+    if stage in ("solve", "render"):
+        return model(scene, precompute_cached)
+    return model(scene)

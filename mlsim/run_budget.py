@@ -82,11 +82,12 @@ class RunEstimate:
 
 def estimate(scene, steps, cache=None) -> RunEstimate:
     """The cost of the plan ``steps`` (:func:`mlsim.pipeline.plan`): the stages it runs. ``cache``
-    (:class:`mlsim.pipeline.Cache`, or None): where the solve's reduced-tier precompute is already
-    cached, it is not priced."""
-    cached = cache is not None and _reduced_model_cached(scene, cache)
-    return RunEstimate(tuple((s.stage.name, stage_cost(scene, s.stage.name, precompute_cached=cached)) for s in steps if s.action == "run"),
-                       process_bytes(scene))
+    (:class:`mlsim.pipeline.Cache`, or None): where a stage's load-independent precompute is already
+    cached (the solve's reduced-tier model, the render's matrix), it is not priced."""
+    cached = {"solve": _reduced_model_cached, "render": _render_matrix_cached}
+    return RunEstimate(tuple((s.stage.name, stage_cost(scene, s.stage.name, precompute_cached=cache is not None and s.stage.name in cached
+                                                       and cached[s.stage.name](scene, cache)))
+                             for s in steps if s.action == "run"), process_bytes(scene))
 
 
 def _reduced_model_cached(scene, cache) -> bool:
@@ -98,6 +99,17 @@ def _reduced_model_cached(scene, cache) -> bool:
     from mlsim.stage import precompute_key
 
     return bool(cache.has(REDUCED_MODEL.name, precompute_key(reduced_model_payload(scene))))
+
+
+def _render_matrix_cached(scene, cache) -> bool:
+    """Whether the cache holds the render's matrix of this sensor and view (the transport tier's light-transport
+    matrix, the deformed tier's bounces; ml_rod_array scenes only)."""
+    if scene.kind != "ml_rod_array" or scene.fidelity.render.tier not in ("transport", "deformed"):
+        return False
+    from mlsim.render.stage import TRANSPORT, transport_payload
+    from mlsim.stage import precompute_key
+
+    return bool(cache.has(TRANSPORT.name, precompute_key(transport_payload(scene, bounces=scene.fidelity.render.tier == "deformed"))))
 
 
 def enforce(est: RunEstimate, max_memory_gb: float | None = None, max_frames: int | None = None, over_budget: bool = False) -> None:

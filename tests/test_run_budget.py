@@ -68,6 +68,34 @@ def test_a_cached_reduced_model_is_not_priced(tmp_path):
     assert asked == []
 
 
+def test_a_cached_render_matrix_is_not_priced(tmp_path):
+    """The render's matrix (the deformed tier's bounces, the transport tier's light transport; cached on the sensor and
+    view, not the load) is priced only where the cache lacks it: with it cached the render costs its frames and the
+    matrix's load (make demo: 90 s priced where the stage took 0.74 s), and the table says why. The path tier has none."""
+    from mlsim.render.stage import TRANSPORT, transport_payload
+    from mlsim.stage import precompute_key
+
+    scene = load_scene(DEFAULT)
+    assert scene.fidelity.render.tier == "deformed"
+    full, cached = (cost_model.stage_cost(scene, "render", precompute_cached=c) for c in (False, True))
+    frames = cost_model.episode_frames(scene.load.duration_s, scene.camera.fps)
+    assert cached.seconds == pytest.approx(cost_model.RENDER_CACHED_MATRIX_S + frames * cost_model.RENDER_FRAME_S["deformed"])
+    assert full.seconds > 50 * cached.seconds and cached.note == "deformed (its matrix cached)" and full.note == "deformed"
+    key = precompute_key(transport_payload(scene, bounces=True))
+    assert key != precompute_key(transport_payload(scene))  # the transport tier's matrix is another
+    assert key == precompute_key(transport_payload(scene.with_values({"load.friction_coefficient": 0.5}), bounces=True))  # not the load's
+
+    class Holding:  # a cache that holds the sensor's bounces and nothing else
+        def has(self, stage, k):
+            return (stage, k) == (TRANSPORT.name, key)
+
+    plan = pipeline.plan(scene, None, ("render",))
+    assert dict(run_budget.estimate(scene, plan, Holding()).rows)["render"].seconds == pytest.approx(cached.seconds)
+    assert dict(run_budget.estimate(scene, plan, pipeline.Cache(tmp_path)).rows)["render"].seconds == pytest.approx(full.seconds)
+    path = scene.with_values({"fidelity.render.tier": "path"})
+    assert dict(run_budget.estimate(path, plan, Holding()).rows)["render"].seconds == pytest.approx(cost_model.stage_cost(path, "render").seconds)
+
+
 def test_run_past_the_memory_budget_is_refused_before_it_starts(tmp_path, capsys):
     out = tmp_path / "out"
     code = main(["run", TINY, "--outputs", "geometry", "--max-memory-gb", "0.01", "--cache", str(tmp_path / "c"), "--out", str(out)])

@@ -11,7 +11,7 @@ from mlsim.emission.stage import patches_in_mesh, patches_of
 from mlsim.scene import Scene
 from mlsim.stage import RunContext, Stage, cached_precompute, memo, npz_io, stage_key
 
-__all__ = ["VIEW_FIELDS", "RENDER", "CAMERA", "CALIBRATION", "TRANSPORT", "TRANSPORT_DEFORMATION_WARN_MM"]
+__all__ = ["VIEW_FIELDS", "transport_payload", "RENDER", "CAMERA", "CALIBRATION", "TRANSPORT", "TRANSPORT_DEFORMATION_WARN_MM"]
 
 _transport_save, _transport_load = npz_io("transport.npz", "mlsim.render:TransportMatrix")
 _render_save, _render_load = npz_io("render.npz", "mlsim.render:RenderResult")
@@ -120,18 +120,28 @@ def _ambient_image(scene: Scene, patches, sheet, transport, raster=None):
     return image, info
 
 
+def transport_payload(scene: Scene, bounces: bool = False) -> dict:
+    """What the render's cached matrix is keyed on (:data:`TRANSPORT`, :func:`mlsim.stage.precompute_key`): this
+    sensor and view, the trace's samples, not the load; ``bounces``: the deformed tier's matrix of the light's bounces.
+    The run's estimate (:mod:`mlsim.run_budget`) asks the cache with it."""
+    from mlsim.render.reprojection import DIRECT_DEPTH
+
+    spec = scene.fidelity.render
+    payload = {"view": scene.content_hash(VIEW_FIELDS), "spp": spec.transport_spp, "drop": spec.transport_drop, "seed": scene.seed, "version": "1"}
+    if bounces:
+        payload.update(first_depth=DIRECT_DEPTH, one_vertex=True)
+    return payload
+
+
 def _cached_transport(scene: Scene, sheet, ctx: "RunContext", bounces: bool = False):
     """The transport matrix, keyed on this sensor and view (not the load); ``bounces``: the deformed
     tier's matrix of the light's bounces (:func:`mlsim.render.reprojection.trace_bounces`)."""
     from mlsim.render import trace_transport
-    from mlsim.render.reprojection import DIRECT_DEPTH, trace_bounces
+    from mlsim.render.reprojection import trace_bounces
 
     spec = scene.fidelity.render
-    payload = {"view": scene.content_hash(VIEW_FIELDS), "spp": spec.transport_spp, "drop": spec.transport_drop, "seed": scene.seed, "version": "1"}
-    trace, what = trace_transport, "light-transport matrix"
-    if bounces:
-        payload.update(first_depth=DIRECT_DEPTH, one_vertex=True)
-        trace, what = trace_bounces, "matrix of the light's bounces"
+    payload = transport_payload(scene, bounces)
+    trace, what = (trace_bounces, "matrix of the light's bounces") if bounces else (trace_transport, "light-transport matrix")
     return cached_precompute(
         ctx, TRANSPORT, payload,
         lambda: trace(sheet, spp=spec.transport_spp, seed=scene.seed, drop=spec.transport_drop, progress=ctx.progress),
