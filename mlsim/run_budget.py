@@ -84,10 +84,12 @@ def estimate(scene, steps, cache=None) -> RunEstimate:
     """The cost of the plan ``steps`` (:func:`mlsim.pipeline.plan`): the stages it runs. ``cache``
     (:class:`mlsim.pipeline.Cache`, or None): where a stage's load-independent precompute is already
     cached (the solve's reduced-tier model, the render's matrix), it is not priced."""
-    cached = {"solve": _reduced_model_cached, "render": _render_matrix_cached}
-    return RunEstimate(tuple((s.stage.name, stage_cost(scene, s.stage.name, precompute_cached=cache is not None and s.stage.name in cached
-                                                       and cached[s.stage.name](scene, cache)))
-                             for s in steps if s.action == "run"), process_bytes(scene))
+    def cached(stage: str) -> bool:
+        ask = {"solve": _reduced_model_cached, "render": _render_matrix_cached}.get(stage)
+        return cache is not None and ask is not None and ask(scene, cache)
+
+    rows = tuple((s.stage.name, stage_cost(scene, s.stage.name, precompute_cached=cached(s.stage.name))) for s in steps if s.action == "run")
+    return RunEstimate(rows, process_bytes(scene))
 
 
 def _reduced_model_cached(scene, cache) -> bool:
