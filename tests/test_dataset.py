@@ -388,6 +388,7 @@ def test_the_episodes_rods_are_first_order_unless_the_spec_asks_for_the_scenes(t
     datasets' rate): the base scene they get is the shipped one without its rods' two lines, so the
     datasets made before keep their spec hash, base scene and solve key (their bytes). The spec's
     rod_kinematics = "scene" runs the base scene's own rods and hashes apart."""
+    from mlsim.dataset.spec import with_the_specs_rods
     from mlsim.pipeline import stage_key
     from mlsim.scene import load_scene
 
@@ -398,6 +399,7 @@ def test_the_episodes_rods_are_first_order_unless_the_spec_asks_for_the_scenes(t
     (tmp_path / "before.toml").write_text("".join(l for l in lines if not l.startswith(("rod_kinematics", "rod_coupling"))))
     before = load_scene(tmp_path / "before.toml")
     assert base.fidelity.solve.rod_kinematics == "first_order" and base.content_hash() == before.content_hash()
+    assert with_the_specs_rods(spec, shipped).content_hash() == with_the_specs_rods(spec, base).content_hash() == base.content_hash()  # generate's
     assert stage_key(base, "solve") == stage_key(before, "solve") != stage_key(shipped, "solve")
     assert "rod_kinematics" not in spec.model_dump(mode="json")
     explicit, _ = load_dataset_spec(write_spec(tmp_path, extra='rod_kinematics = "first_order"\n'))

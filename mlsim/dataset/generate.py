@@ -293,14 +293,18 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
              limit: int | None = None) -> dict:
     """Generate (or complete) the dataset of ``spec`` in ``out_dir``; returns the run's summary.
 
+    ``base``: the spec's base scene; its rods are the spec's (:func:`mlsim.dataset.spec.with_the_specs_rods`).
     ``limit``: stop after this many new episodes (for tests and trials; a rerun continues)."""
     from tqdm.auto import tqdm
+
+    from mlsim.dataset.spec import with_the_specs_rods
 
     from mlsim import pipeline
     from mlsim.dataset.executors import map_unordered
     from mlsim.dataset.failures import JobFailed
 
     out = Path(out_dir)
+    base = with_the_specs_rods(spec, base)  # (a base from load_dataset_spec has them already)
     # the chain after the solve: its device resolved first, so that a "cuda" without one fails before anything is written
     device, why = "cpu", "chain = per_episode"
     if spec.chain == "batched":

@@ -48,7 +48,7 @@ from mlsim.errors import Problem, SceneError
 from mlsim.interactions import ACTIONS, InteractionSpec
 from mlsim.scene import Bool, Scene, _Model, _problems_from_pydantic, load_scene, read_toml
 
-__all__ = ["DatasetSpec", "load_dataset_spec", "dataset_spec_from_dict"]
+__all__ = ["DatasetSpec", "load_dataset_spec", "dataset_spec_from_dict", "with_the_specs_rods"]
 
 # The chain's and the rods' fields at their defaults are left out of the spec's dump and hash (the
 # datasets made before they existed keep theirs)
@@ -149,6 +149,13 @@ def _chain_problems(spec: DatasetSpec) -> list[Problem]:
     return problems
 
 
+def with_the_specs_rods(spec: DatasetSpec, base: Scene) -> Scene:
+    """The base scene with the rods the spec's episodes have: first order (:data:`FIRST_ORDER_RODS`, the datasets'
+    rate) unless ``rod_kinematics = "scene"``. Idempotent: :func:`load_dataset_spec` returns it so, and
+    :func:`mlsim.dataset.generate.generate` applies it to whatever base it is given."""
+    return base.with_values(FIRST_ORDER_RODS) if spec.rod_kinematics == "first_order" else base
+
+
 def load_dataset_spec(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[DatasetSpec, Scene]:
     """Read and validate a dataset spec and its base scene; returns (spec, base scene), the base scene with
     the spec's rods (``rod_kinematics``: first order, :data:`FIRST_ORDER_RODS`, unless ``"scene"``).
@@ -161,9 +168,7 @@ def load_dataset_spec(path: str | Path, overrides: dict[str, Any] | None = None)
     scene_path = (path.parent / spec.scene).resolve()
     if not scene_path.is_file():
         raise SceneError([Problem("scene", spec.scene, f"no such scene file (looked for {scene_path})")], source=str(path))
-    base = load_scene(scene_path)
-    if spec.rod_kinematics == "first_order":
-        base = base.with_values(FIRST_ORDER_RODS)
+    base = with_the_specs_rods(spec, load_scene(scene_path))
     if base.load is None:
         raise SceneError([Problem("scene", spec.scene, "the base scene needs a [load] (its friction is the screw's)")], source=str(path))
     if spec.chain == "batched":  # what mlsim.dataset.batched runs (BatchedChain.from_scene would refuse it in every worker)
