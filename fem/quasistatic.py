@@ -155,12 +155,24 @@ class ReducedModel:
                "point_compliance_blocks", "local_stress_rows", "local_displacement_rows", "local_stress", "local_displacement", "local_sizes")
 
     def save(self, path) -> None:
-        np.savez(path, element=self.element, seconds_json=json.dumps(self.seconds), **{k: getattr(self, k) for k in self._ARRAYS})
+        """Every array, and the far-field bases in their sparse form (:meth:`far_field_rows`): each dataset
+        worker made them again from the dense bases, 0.47 s of its CPU before its first episode."""
+        far = {}
+        for which in ("stress", "displacement"):
+            A = self.far_field_rows(which)
+            far.update({f"far_{which}_data": A.data, f"far_{which}_indices": A.indices, f"far_{which}_indptr": A.indptr,
+                        f"far_{which}_shape": np.asarray(A.shape)})
+        np.savez(path, element=self.element, seconds_json=json.dumps(self.seconds), **{k: getattr(self, k) for k in self._ARRAYS}, **far)
 
     @classmethod
     def load(cls, path) -> "ReducedModel":
         with np.load(path) as z:
-            return cls(**{k: z[k] for k in cls._ARRAYS}, element=str(z["element"]), seconds=json.loads(str(z["seconds_json"])))
+            model = cls(**{k: z[k] for k in cls._ARRAYS}, element=str(z["element"]), seconds=json.loads(str(z["seconds_json"])))
+            for which in ("stress", "displacement"):  # a model cached before they were saved makes them on first use
+                if f"far_{which}_data" in z.files:
+                    model._far_rows[which] = sp.csr_matrix((z[f"far_{which}_data"], z[f"far_{which}_indices"], z[f"far_{which}_indptr"]),
+                                                           shape=tuple(int(n) for n in z[f"far_{which}_shape"]))
+        return model
 
     def rod_blocks(self) -> dict[int, np.ndarray]:
         """Each rod's point compliance (3 m_a, 3 m_a), its points in ascending index order."""

@@ -85,17 +85,37 @@ class Cache:
     def has(self, stage: str, key: str) -> bool:
         return (self.path(stage, key) / "COMPLETE").is_file()
 
-    def store(self, stage: Stage, key: str, result) -> None:
+    def store(self, stage: Stage, key: str, result):
+        """Save ``result`` as (stage, key) and return what the cache holds there: ``result``, or, where
+        another process stored the same key while this one computed it, that result, loaded (the
+        first to finish wins).
+
+        Why the first: a key names a result's inputs, not its bits. fTetWild's meshes of one scene
+        differ from run to run (its threads), and two runs building one sensor at once (a dataset's
+        driver and an ``mlsim run`` on a fresh cache) each wrote its mesh over the other's: the
+        precomputes one of them cached from its mesh were then read with the other's, and every
+        episode of the dataset failed ("cannot reshape array of size 2863392 into shape
+        (28,6,16188)"). A run that loses hands the winner's result to its later stages, so everything
+        cached after it agrees with it."""
         self.used.add((stage.name, key))
+        if self.has(stage.name, key):
+            return self.fetch(stage, key)
         final = self.path(stage.name, key)
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{key[:12]}.", dir=final.parent))
         try:
             stage.save(result, tmp)
             (tmp / "COMPLETE").write_text(key)
-            if final.exists():
-                shutil.rmtree(final)
-            os.replace(tmp, final)
+            for _ in range(3):
+                try:
+                    os.rename(tmp, final)  # a directory onto a non-empty one fails (POSIX), atomically
+                    return result
+                except OSError:
+                    if self.has(stage.name, key):  # another process's, complete: keep it
+                        shutil.rmtree(tmp, ignore_errors=True)
+                        return self.fetch(stage, key)
+                    shutil.rmtree(final, ignore_errors=True)  # a leftover without its COMPLETE mark
+            raise OSError(f"cache: could not move {tmp} to {final}; remove {final} and run again")
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
@@ -191,7 +211,8 @@ def run(scene: Scene, out_dir: str | Path | None = None, cache: Cache | None = N
             log(f"[{st.name}] running")
             results[st.name] = st.run(scene, {n: results[n] for n in st.needs}, ctx)
             if st.save is not None and cache.keeps(st.name):
-                cache.store(st, step.key, results[st.name])
+                # the cache's result: another run's where it stored this key first (Cache.store)
+                results[st.name] = cache.store(st, step.key, results[st.name])
         seconds[st.name] = time.perf_counter() - t0
         if step.requested and out is not None and st.write is not None:
             files[st.name] = st.write(results[st.name], out, ctx)

@@ -220,9 +220,7 @@ def cached_precompute(ctx: RunContext, stage: Stage, payload: dict, build: Calla
         if ctx.cache.has(stage.name, key):
             return ctx.cache.fetch(stage, key)
         ctx.log(message)
-        result = build()
-        ctx.cache.store(stage, key, result)
-        return result
+        return ctx.cache.store(stage, key, build())  # another run's where it stored this key first
 
     return memo((stage.name, key, str(ctx.cache.root)), load_or_build)
 

@@ -219,7 +219,7 @@ def test_kill_halfway_then_resume_completes_without_duplicates(small, tmp_path):
 
 def test_the_drivers_episode_lists_the_sensors_precomputes_for_the_next_run(small, tmp_path, monkeypatch):
     """The module's run listed what its driver episode took from the cache: the mesh, the calibration
-    frame and the hidden precomputes (the reduced tier's, the transport matrix, the ML sheet's patches and where they sit in the mesh,
+    frame and the hidden precomputes (the reduced tier's, the transport matrix, the rasteriser, the ML sheet's patches and where they sit in the mesh,
     the ML light's channel factors). A later run skips
     its driver episode only while every listed result is still in the cache."""
     from mlsim import pipeline
@@ -227,8 +227,8 @@ def test_the_drivers_episode_lists_the_sensors_precomputes_for_the_next_run(smal
     spec, base, _ = small
     cache = pipeline.Cache(keep=gen.CACHE_KEEP)
     listed = gen._precomputes_listed(cache, base, spec)
-    assert listed is not None and {s for s, _ in listed} == {"mesh", "calibration", "reduced_model", "transport_matrix", "ml_patches",
-                                                                     "ml_patches_in_mesh", "ml_channel_factors"}
+    assert listed is not None and {s for s, _ in listed} == {"mesh", "calibration", "reduced_model", "transport_matrix", "direct_raster",
+                                                                     "ml_patches", "ml_patches_in_mesh", "ml_channel_factors"}
     elsewhere = pipeline.Cache(tmp_path / "cache", keep=gen.CACHE_KEEP)  # the same list, none of the results
     path = gen._precomputes_path(elsewhere, base, spec)
     path.parent.mkdir(parents=True)

@@ -172,6 +172,29 @@ def test_interrupted_store_leaves_no_cache_entry(tmp_path):
     assert list((tmp_path / "t").iterdir()) == []
 
 
+def test_a_key_another_run_stored_first_is_kept_and_handed_back(tmp_path):
+    """Two runs computing one cache entry at once (a dataset's driver and an ``mlsim run`` meshing one
+    sensor on a fresh cache): the first to finish wins and the second gets the first's result back
+    from ``store``, so the stages it caches afterwards agree with what the cache holds. (Each wrote
+    over the other's before: fTetWild's meshes of one scene differ from run to run, and a dataset's
+    episodes then read one mesh's precomputes with the other mesh.)"""
+    from mlsim.pipeline import Stage
+
+    def save(result, directory):
+        if result == "ours":  # the other run finishes while this one writes
+            Cache(tmp_path).store(stage, key, "theirs")
+        (directory / "r.txt").write_text(result)
+
+    stage = Stage(name="t", doc="", reads=(), needs=(), run=lambda *a: None, save=save, load=lambda d: (d / "r.txt").read_text())
+    key = "k" * 64
+    cache = Cache(tmp_path)
+    assert cache.store(stage, key, "ours") == "theirs"
+    assert cache.fetch(stage, key) == "theirs"
+    assert cache.store(stage, key, "later") == "theirs"  # a complete entry is never written over
+    assert [p.name for p in (tmp_path / "t").iterdir()] == [key]  # no temporary folder left
+    assert Cache(tmp_path / "fresh").store(stage, key, "alone") == "alone"
+
+
 def test_summary_and_cli_exit_codes(tmp_path, tiny_mesh, cache, capsys):
     code = main(["mesh", str(TINY), "--out", str(tmp_path), "--cache", str(cache.root), "--quiet"])
     assert code == 0

@@ -299,7 +299,7 @@ def test_a_rods_load_reaches_the_rest_of_the_sensor_as_its_resultant(tiny_mesh, 
     assert np.all((per_rod >= 5) & (per_rod <= 7)), per_rod
 
 
-def test_the_field_recovery_drops_only_the_far_fields_small_entries(tiny_mesh, body, monkeypatch):
+def test_the_field_recovery_drops_only_the_far_fields_small_entries(tiny_mesh, body, monkeypatch, tmp_path):
     """ReducedModel.far_field_rows keeps each far-field basis vector's entries of at least
     FAR_FIELD_DROP of its largest, and reduced_fields_of then differs from the dense superposition
     (basis^T coeff, in float64) by at most the dropped entries' bound, sum_k |c_k| drop peak_k."""
@@ -316,6 +316,13 @@ def test_the_field_recovery_drops_only_the_far_fields_small_entries(tiny_mesh, b
     keep = np.flatnonzero(red.point_rod == red.point_rod[0])  # one rod's points, loaded
     loads = rng.standard_normal((3, len(keep), 3))
     stress, _ = qs.reduced_fields_of(red, keep, red.point_rod[keep], loads)
+    # the model read back from its file (the cache's) holds the same sparse rows and gives the same bits
+    red.save(tmp_path / "reduced.npz")
+    back = qs.ReducedModel.load(tmp_path / "reduced.npz")
+    for which in ("stress", "displacement"):
+        a, b = red.far_field_rows(which), back._far_rows[which]
+        assert a.shape == b.shape and (a != b).nnz == 0 and b.dtype == np.float32
+    np.testing.assert_array_equal(qs.reduced_fields_of(back, keep, back.point_rod[keep], loads)[0], stress)
     Fp = np.zeros((red.stress_coeff.shape[1], 3))
     np.add.at(Fp, (3 * red.point_patch[keep][:, None] + np.arange(3)).ravel(), loads.reshape(3, -1).T)
     c = red.stress_coeff @ Fp  # (K, U)

@@ -201,3 +201,73 @@ def test_frames_read_where_they_lie_are_the_gathered_frames_images():
     np.testing.assert_array_equal(raster.images(moved, e, frames=frames), raster.images(moved[frames], e))
     with pytest.raises(ValueError, match="frames"):
         raster.images(moved, e, frames=np.array([0, 1, 2, 4]))
+
+
+def test_the_raster_read_back_from_its_file_is_the_same_raster(tmp_path):
+    """DirectRaster.save / load (the deformed tier caches it for the sensor and view): every field
+    and the images it makes, bit for bit."""
+    from mlsim.render.direct_raster import DirectRaster
+
+    g, V, _, sheet = small_sheet(32)
+    raster = direct_raster(sheet, 2)
+    raster.save(tmp_path / "raster.npz")
+    back = DirectRaster.load(tmp_path / "raster.npz")
+    for name in DirectRaster._FIELDS:
+        a, b = getattr(raster, name), getattr(back, name)
+        assert type(a) is type(b) or isinstance(a, np.ndarray), name
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)
+    at = np.stack([V, bent(g, V, 1.5e-3)])
+    e = np.random.default_rng(3).uniform(1e14, 1e15, (2, len(V))).astype(np.float32)
+    np.testing.assert_array_equal(back.images(at, e).view(np.uint32), raster.images(at, e).view(np.uint32))
+
+
+_RERENDER = """
+import json, sys
+import numpy as np
+from mlsim import pipeline
+from mlsim.scene import load_scene
+scene = load_scene(sys.argv[1]).with_values(json.loads(sys.argv[3]))
+res = pipeline.run(scene, cache=pipeline.Cache(sys.argv[2]), outputs=("camera",), progress=False, log=lambda m: None)
+print(json.dumps({"mitsuba": "mitsuba" in sys.modules, "drjit": "drjit" in sys.modules, "scipy.integrate": "scipy.integrate" in sys.modules,
+                  "actions": {s.stage.name: s.action for s in res.steps},
+                  "radiance": np.asarray(res.results["render"].radiance, dtype=np.float32).tobytes().hex()}))
+"""
+
+
+def test_the_deformed_tier_from_a_warm_cache_never_imports_mitsuba(tmp_path, tiny_mesh, cache):
+    """A run of the deformed tier whose sensor's matrix and rasteriser are cached (a dataset's
+    episode, a new load on a known sensor) reads only the sheet's geometry: Mitsuba is not imported
+    (0.6 s of each dataset worker's CPU), nor is scipy.integrate without an ambient lamp, and the
+    image is the one the run that made the cache rendered, bit for bit."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from mlsim import pipeline
+
+    scene = tiny_mesh[0]
+    first = pipeline.run(scene, cache=cache, outputs=("camera",), progress=False, log=lambda m: None)
+    assert scene.fidelity.render.tier == "deformed" and scene.ambient.lamp == "none"
+    root = Path(__file__).resolve().parents[1]
+    outs = []
+    for change in ({}, {"camera.gain_db": 3.0}):  # the render from the cache, then the camera again on the cached render
+        # the emission made anew (a new brightness) so that the render runs, on the cached solve and sensor
+        values = {"emission.brightness_photons_per_m2": 3.1e19, **change}
+        if not change:  # a kept test cache (MLSIM_TEST_KEEP_CACHE) may hold these from a run before
+            changed = scene.with_values(values)
+            for name in ("emission", "render", "camera"):
+                shutil.rmtree(cache.path(name, pipeline.stage_key(changed, name)), ignore_errors=True)
+        proc = subprocess.run([sys.executable, "-c", _RERENDER, str(root / "scenes" / "mavig_tiny.toml"), str(cache.root), json.dumps(values)],
+                              capture_output=True, text=True, cwd=root, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        out = json.loads(proc.stdout.strip().splitlines()[-1])
+        assert not out["mitsuba"] and not out["drjit"] and not out["scipy.integrate"], out
+        outs.append(out)
+    assert outs[0]["actions"] == {"geometry": "run", "mesh": "load", "solve": "load", "emission": "run", "render": "run", "camera": "run"}
+    assert outs[1]["actions"] == {"emission": "load", "render": "load", "camera": "run"}
+    out = outs[0]
+    # the same sheet and parts: the brightness scales the radiance, so the image is the first run's times 3.1 / 2.7
+    again = np.frombuffer(bytes.fromhex(out["radiance"]), np.float32).reshape(first.results["render"].radiance.shape)
+    np.testing.assert_allclose(again, first.results["render"].radiance * (3.1e19 / scene.emission.brightness_photons_per_m2), rtol=2e-6, atol=0)

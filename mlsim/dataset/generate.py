@@ -50,7 +50,8 @@ __all__ = ["plan_episodes", "run_episode_job", "run_batch_job", "episode_record"
 
 #: The stages a dataset keeps in the cache: the sensor's, shared by every episode (each episode's
 #: own intermediate results are not written to disk).
-CACHE_KEEP = ("geometry", "mesh", "calibration", "reduced_model", "transport_matrix", "ml_patches", "ml_patches_in_mesh", "ml_channel_factors")
+CACHE_KEEP = ("geometry", "mesh", "calibration", "reduced_model", "transport_matrix", "direct_raster", "ml_patches", "ml_patches_in_mesh",
+              "ml_channel_factors")
 
 
 def _seed_int(*parts: int) -> int:

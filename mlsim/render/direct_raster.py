@@ -139,6 +139,24 @@ class DirectRaster:
     height_px: int
     width_px: int
 
+    #: the fields :meth:`save` writes (the dataclass's)
+    _FIELDS = ("throughput", "per_side", "pixel_map", "inv_length", "r2_step_mm2", "z_step_mm", "faces", "orientation", "n_vertices",
+               "height_px", "width_px")
+
+    def save(self, path) -> None:
+        """Write every field to an ``.npz`` file (:meth:`load` reads it back, the same bits)."""
+        np.savez(path, **{name: np.asarray(getattr(self, name)) for name in self._FIELDS})
+
+    @classmethod
+    def load(cls, path) -> "DirectRaster":
+        with np.load(path) as data:
+            values = {name: data[name] for name in cls._FIELDS}
+        for name in ("per_side", "n_vertices", "height_px", "width_px"):
+            values[name] = int(values[name])
+        for name in ("r2_step_mm2", "z_step_mm", "orientation"):
+            values[name] = float(values[name])
+        return cls(**values)
+
     @property
     def z_max_mm(self) -> float:
         return self.z_step_mm * (self.inv_length.shape[1] - 1)

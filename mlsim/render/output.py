@@ -159,13 +159,14 @@ def idle_frames(scene, render_result, n_frames: int, start_s: float | None = Non
 
 def _ambient_terms(scene, render_result, windows_s):
     """(ambient image (H, W) or None, lamp level per frame (F,), channel factors of the leak (3,))."""
-    from mlsim.render import ambient
-    from mlsim.render.optics import channel_factors_of
-
     a = scene.ambient
     level = np.zeros(len(windows_s))
     if render_result.ambient is None or a.lamp == "none":
         return None, level, np.zeros(3, np.float32)
+    # imported only with a lamp: the module imports scipy.integrate (0.6 s of a dataset worker's CPU)
+    from mlsim.render import ambient
+    from mlsim.render.optics import channel_factors_of
+
     level = ambient.lamp_level(windows_s, a.flicker_hz, a.flicker_depth, a.switch_on_s, a.switch_off_s)
     sd = ambient.leaked_photon_sd(a.lamp, scene.optics.absorber, scene.sensor.layers.absorber_mm)
     return render_result.ambient.astype(np.float32), level, channel_factors_of(scene, sd).astype(np.float32)
