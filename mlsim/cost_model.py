@@ -81,8 +81,8 @@ RENDER_FRAME_S = {"deformed": 3.5e-3, "transport": 1.0e-3}
 # (bench_cost_model, 2026-11-27; README's 18-22 s of bench_deformed had its matrix cached)
 RENDER_PRECOMPUTE_FIXED_S = {"deformed": 8.0, "transport": 6.0, "path": 2.0}
 RENDER_PRECOMPUTE_S_PER_VERTEX = {"deformed": 0.017, "transport": 0.013, "path": 0.0}
-# with the matrix in the cache: loaded, and the deformed tier's raster tables made in-process (0.1-0.3 s): the default
-# demo's render stage took 0.74 s for its 22 frames (make demo, 2026-11-29)
+# with the matrix in the cache: loaded, and the deformed tier's rasteriser (cached too since 2026-11-29, issue 40; made
+# in-process before, 0.1-0.4 s): the default demo's render stage took 0.74 s for its 22 frames (make demo, 2026-11-29)
 RENDER_CACHED_MATRIX_S = 0.7
 PATH_S_PER_SAMPLE = 1.0 / (16 * 350 * 350)
 # the transport matrix: 2.61 M entries on the demo at 64 spp (96069d7), 12 bytes each

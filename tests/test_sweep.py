@@ -156,21 +156,21 @@ def test_pareto_front():
 
 def test_load_files_carry_their_stepping():
     swipe = read_load(ROOT / "scenes" / "swipe.toml")
-    assert swipe.name == "swipe" and swipe.solve == {"substeps": 24, "rod_kinematics": "cosserat", "rod_coupling": "held"}
+    assert swipe.name == "swipe" and swipe.solve == {"substeps": 48, "rod_kinematics": "cosserat", "rod_coupling": "held"}
     assert swipe.load["segments"][1]["speed_mm_s"] == 200.0  # SPEC 1.5: 200 mm/s
     press = read_load(ROOT / "scenes" / "press.toml")
     assert press.solve == {} and press.load["segments"][0]["force_n"] == 5.0
     first_order = load_scene(DEFAULT).with_values({"fidelity.solve.rod_kinematics": "first_order"})
     scene = swipe.apply(first_order, ("solve",))
-    assert scene.fidelity.solve.substeps == 24 and scene.load.indenter.tip_area_mm2 == 500.0 and scene.outputs == ("solve",)
+    assert scene.fidelity.solve.substeps == 48 and scene.load.indenter.tip_area_mm2 == 500.0 and scene.outputs == ("solve",)
     assert scene.fidelity.solve.rod_kinematics == "cosserat" and scene.fidelity.solve.rod_coupling == "held"  # with its coupling
     # what the load needs at the least: a variant that steps finer or with rod kinematics as rich keeps its own (and its coupling)
     finer = swipe.apply(load_scene(DEFAULT).with_values({"fidelity.solve.rod_kinematics": "cosserat", "fidelity.solve.rod_coupling": "dead",
-                                                         "fidelity.solve.substeps": 48}), ("solve",))
-    assert finer.fidelity.solve.rod_kinematics == "cosserat" and finer.fidelity.solve.substeps == 48 and finer.fidelity.solve.rod_coupling == "dead"
+                                                         "fidelity.solve.substeps": 96}), ("solve",))
+    assert finer.fidelity.solve.rod_kinematics == "cosserat" and finer.fidelity.solve.substeps == 96 and finer.fidelity.solve.rod_coupling == "dead"
     demo = swipe.apply(load_scene(DEFAULT), ("solve",))
     assert demo.fidelity.solve.rod_kinematics == "cosserat" and demo.fidelity.solve.rod_coupling == "held"  # the demo's own
-    assert demo.fidelity.solve.substeps == 24
+    assert demo.fidelity.solve.substeps == 48
     with pytest.raises(SceneError, match="no \\[load\\]"):
         read_load(ROOT / "scenes" / "verify_fem_s2.toml")
 
