@@ -24,12 +24,11 @@ ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("mitsuba", "drjit", "torch", "colour", "pandas", "scipy.integrate", "cv2")
 
 _CHILD = """
-import json, os, sys, time
-for n in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMBA_NUM_THREADS"):
-    os.environ[n] = "1"
+import json, sys, time
 sys.path[:0] = [sys.argv[1], sys.argv[1] + "/benchmarks"]
 c0 = time.process_time()
-from bench_episode_stages import _jobs
+from bench_episode_stages import _jobs, _one_thread
+_one_thread()  # a worker's thread limits, before numpy loads
 from mlsim.dataset import generate as gen
 jobs = _jobs(sys.argv[2], 2)
 c1 = time.process_time()

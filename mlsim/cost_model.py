@@ -217,8 +217,8 @@ def _render(scene, precompute_cached: bool = False) -> StageCost:
     precompute = RENDER_PRECOMPUTE_FIXED_S[r.tier] + per_vertex * _sheet_vertices(scene)
     cached = precompute_cached and r.tier in ("transport", "deformed")
     if cached:
-        # the matrix loaded from the cache (mlsim.render.stage.transport_payload) and the raster's tables made: priced at
-        # the whole precompute, the default demo's render was 90 s where it took 0.74 (make demo, 2026-11-29)
+        # the matrix (mlsim.render.stage.transport_payload) and the deformed tier's rasteriser loaded from the cache: priced
+        # at the whole precompute, the default demo's render was 90 s where it took 0.74 (make demo, 2026-11-29)
         precompute = RENDER_CACHED_MATRIX_S
     return StageCost("render", memory, precompute + frames * per_frame, frames=_int(frames), note=r.tier + (" (its matrix cached)" if cached else ""))
 

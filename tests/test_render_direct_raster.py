@@ -206,13 +206,15 @@ def test_frames_read_where_they_lie_are_the_gathered_frames_images():
 def test_the_raster_read_back_from_its_file_is_the_same_raster(tmp_path):
     """DirectRaster.save / load (the deformed tier caches it for the sensor and view): every field
     and the images it makes, bit for bit."""
+    import dataclasses
+
     from mlsim.render.direct_raster import DirectRaster
 
     g, V, _, sheet = small_sheet(32)
     raster = direct_raster(sheet, 2)
     raster.save(tmp_path / "raster.npz")
     back = DirectRaster.load(tmp_path / "raster.npz")
-    for name in DirectRaster._FIELDS:
+    for name in (f.name for f in dataclasses.fields(DirectRaster)):
         a, b = getattr(raster, name), getattr(back, name)
         assert type(a) is type(b) or isinstance(a, np.ndarray), name
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)

@@ -298,11 +298,10 @@ def generate(spec: DatasetSpec, base: Scene, out_dir: str | Path, *, workers: in
     ``limit``: stop after this many new episodes (for tests and trials; a rerun continues)."""
     from tqdm.auto import tqdm
 
-    from mlsim.dataset.spec import with_the_specs_rods
-
     from mlsim import pipeline
     from mlsim.dataset.executors import map_unordered
     from mlsim.dataset.failures import JobFailed
+    from mlsim.dataset.spec import with_the_specs_rods
 
     out = Path(out_dir)
     base = with_the_specs_rods(spec, base)  # (a base from load_dataset_spec has them already)

@@ -46,7 +46,7 @@ the pixel's mean); against the spectral path reference every count gives the tie
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -139,23 +139,15 @@ class DirectRaster:
     height_px: int
     width_px: int
 
-    #: the fields :meth:`save` writes (the dataclass's)
-    _FIELDS = ("throughput", "per_side", "pixel_map", "inv_length", "r2_step_mm2", "z_step_mm", "faces", "orientation", "n_vertices",
-               "height_px", "width_px")
-
     def save(self, path) -> None:
         """Write every field to an ``.npz`` file (:meth:`load` reads it back, the same bits)."""
-        np.savez(path, **{name: np.asarray(getattr(self, name)) for name in self._FIELDS})
+        np.savez(path, **{f.name: np.asarray(getattr(self, f.name)) for f in fields(self)})
 
     @classmethod
     def load(cls, path) -> "DirectRaster":
+        scalar = {"int": int, "float": float}  # the fields' annotations (strings: postponed evaluation)
         with np.load(path) as data:
-            values = {name: data[name] for name in cls._FIELDS}
-        for name in ("per_side", "n_vertices", "height_px", "width_px"):
-            values[name] = int(values[name])
-        for name in ("r2_step_mm2", "z_step_mm", "orientation"):
-            values[name] = float(values[name])
-        return cls(**values)
+            return cls(**{f.name: scalar[f.type](data[f.name]) if f.type in scalar else data[f.name] for f in fields(cls)})
 
     @property
     def z_max_mm(self) -> float:
