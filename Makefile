@@ -14,6 +14,9 @@ PYTEST_ARGS ?=
 # Python or scipy, and two processes take 1.8 cores where one took 1.4 (661 -> 524 s on 2 cores).
 # `make test PYTEST_PROCS=0` runs it in one process.
 PYTEST_PROCS ?= 2
+# the slowest tests listed at the end of every run (CI's log too): what to make smaller when the suite nears
+# its 15 minutes on 2 cores
+PYTEST_DURATIONS ?= 30
 
 .PHONY: demo test test-slow bench docs llvm venv clean
 
@@ -21,7 +24,7 @@ demo: $(STAMP)
 	$(VENV)/bin/mlsim run scenes/mavig_default.toml --out out/demo
 
 test: $(STAMP)
-	$(PY) -m pytest -n $(PYTEST_PROCS) --dist loadfile $(PYTEST_ARGS)
+	$(PY) -m pytest -n $(PYTEST_PROCS) --dist loadfile --durations=$(PYTEST_DURATIONS) $(PYTEST_ARGS)
 	$(MAKE) --no-print-directory docs
 
 # the documentation site into site/ (a warning fails it; about 15 s): docs/, mkdocs.yml, and the

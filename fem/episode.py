@@ -236,6 +236,8 @@ class Episode:
             "geometric_error_estimate": self.seconds.get("geometric_error_estimate"),
             # Cosserat rods: the bent rods let go, [step, mesh rod], where that estimate does not hold (fem.rod_exact)
             "geometric_error_releases": self.seconds.get("geometric_error_releases"),
+            # and the rods dragged over near buckling, [first step, mesh rod], where it does not hold either (fem.rod_error.BENT_AXIAL)
+            "geometric_error_bent": self.seconds.get("geometric_error_bent"),
             "per_rod_peak": self.rod_peaks(),
         }
 

@@ -854,17 +854,23 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
         # the Cosserat rods' own: their ends' linear response turned with their tips, the section's mismatch, the rounds'
         # residual; and the releases of bent rods, where it does not hold (fem.rod_error)
         weights = np.bincount(frame_of[grid.frame_step], minlength=U)
-        estimate = rod_error.force_error_estimate(kinematics, forces[first], weights, first, round_residual[first])
+        estimate = rod_error.force_error_estimate(kinematics, forces[first], weights, first, round_residual[first], load.friction_coefficient)
         timings["geometric_error_estimate"] = estimate.force
         timings["geometric_error_releases"] = [list(r) for r in estimate.releases]
+        timings["geometric_error_bent"] = [list(r) for r in estimate.bent]
         if log is not None and np.isfinite(estimate.force):
             where = sorted({s for s, _ in estimate.releases})
+            bent = sorted({s for s, _ in estimate.bent})
             log(f"the {settings.tier} tier's Cosserat rods: per-rod contact forces estimated {estimate.force:.1%} off the nonlinear tier's "
                 "(fem.rod_error.force_error_estimate)"
                 + (f"; it does not hold here: bent rods are let go in steps {where} (rods {sorted({r for _, r in estimate.releases})}) and "
                    "snap back at a step that depends on which frictional equilibrium held them (the default demo's lift-off 10-18 %, "
                    'a swipe over 12 mm rods 14-22 % off in those frames); compare with fidelity.solve.tier = "nonlinear" there'
-                   if where else ""))
+                   if where else "")
+                + (f"; it does not hold {'either ' if where else ''}where rods {sorted({r for _, r in estimate.bent})} are dragged over, "
+                   f"sliding past a tenth of their length under more than half their free Euler load (from steps {bent}): where "
+                   "their tips land follows the path (swipes over 12 x 5 and 6 x 3 mm rods: 23-28 % off in force, 25-51 % in "
+                   'light; fem.rod_error.BENT_AXIAL); compare with fidelity.solve.tier = "nonlinear"' if bent else ""))
     elif second_order:
         # the estimate is of first-order kinematics; second order measured 7-11 % on the tiny slide (fem.rod_kinematics)
         timings["geometric_error_estimate"] = float("nan")

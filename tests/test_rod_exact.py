@@ -148,6 +148,47 @@ def test_the_error_estimate_is_first_order_in_the_load_and_sees_no_release(rod0)
         kin.local_compliance = None
 
 
+def test_the_error_estimate_does_not_hold_for_a_rod_dragged_over_near_buckling(rod0):
+    """A rod whose tip moved sideways past a tenth of its length under more than half its free Euler load along its
+    axis, sliding (its sideways force at the friction limit), is dragged over near buckling (fem.rod_error.BENT_AXIAL):
+    its tip goes where the friction limit over its near-buckling lateral stiffness puts it (the swipe over 12 x 5 mm
+    rods: estimated 8-15 %, measured 23-28 % in force), so the estimate says it does not hold there, naming the first
+    step and the rod. Held by friction below its limit (the direction test's pushed rod: 1.1 % off), bent as far under
+    a small axial load, or pressed as hard straight, it holds."""
+    kin, points, C, f = rod0
+    cols = lambda p: (3 * np.asarray(p)[:, None] + np.arange(3)).ravel()  # noqa: E731
+    kin.local_compliance = lambda p: C[np.ix_(cols(p), cols(p))]
+    tip = np.flatnonzero(f[:, 0] > 0.0)
+    down = np.zeros_like(f)
+    down[tip, 2] = -points.area_m2[tip] / points.area_m2[tip].sum()  # 1 N down over the tip face by area
+    sec = kin.section
+    euler_n = np.pi**2 * min(sec.bending_n_m2) / (4.0 * sec.length_m**2)
+
+    def sideways(load):
+        (_, state, *_), = [a for a in kin._answers(load) if a[0] == 0]
+        return float(np.linalg.norm(state.x[-1, :2] - kin.root_X[0, :2])) / sec.length_m
+
+    def estimate(loads, friction):
+        return rod_error.force_error_estimate(kin, np.stack(loads), np.ones(len(loads)), friction=friction)
+
+    try:
+        near, far = 0.55 * euler_n * down, 0.2 * euler_n * down
+        dragged = 3.0 * f + near  # 0.15 N sideways at 0.55 x the free Euler load: 0.28 L
+        assert sideways(dragged) > rod_error.RELEASE_SIDEWAYS
+        limit = 0.15 / (0.55 * euler_n)  # the friction coefficient it slides at
+        est = estimate([near, dragged], limit)
+        assert est.bent == [(1, int(kin.sections.rods[0]))] and est.releases == [], est
+        # held by friction below its limit, or with no friction given: not dragged over
+        assert estimate([near, dragged], 1.5 * limit).bent == [] and estimate([near, dragged], None).bent == []
+        # as far sideways under a fifth of the load (0.24 L), and pressed straight (0.03 L, the tip face's eccentricity)
+        light = 5.0 * f + far
+        assert sideways(light) > rod_error.RELEASE_SIDEWAYS
+        assert estimate([light], 0.25 / (0.2 * euler_n)).bent == []
+        assert sideways(near) < 0.05 and estimate([near], 0.0).bent == []  # frictionless: sliding, but straight
+    finally:
+        kin.local_compliance = None
+
+
 def test_the_section_identified_from_the_meshs_rod_gives_the_straight_rod_its_lateral_tip_compliance(rod0, tiny_mesh, monkeypatch):
     """The tiny mesh's rod is stiffer sideways than the layered section (fTetWild's faceted circle, the P2
     elements): the identified bending and shear stiffnesses give the straight Cosserat rod exactly the mesh's lateral

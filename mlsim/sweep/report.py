@@ -58,6 +58,8 @@ def rows(records: list[dict], varies, load_names: list[str]) -> list[dict]:
             # Cosserat rods: bent rods let go (fem.rod_error.force_error_estimate), where the estimate does not hold
             releases = r.get("solve_error_releases")
             row[f"{name}_releases"] = None if releases is None else len(releases)
+            bent = r.get("solve_error_bent")  # and rods dragged over near buckling (fem.rod_error.BENT_AXIAL)
+            row[f"{name}_bent"] = None if bent is None else len(bent)
             # which tier answered each load; "nonlinear<linear": the linear tier refused it as beyond its model
             # (mlsim.errors.OutOfRangeError) and the nonlinear tier answered (with backward-Euler dynamics: "+be")
             esc = r.get("escalated") or {}
@@ -117,6 +119,17 @@ def _fmt(value) -> str:
     return str(value)
 
 
+def _cell(row: dict, column: str) -> str:
+    """A Markdown cell: the value, and a load's force error estimate marked where it does not hold (bent rods let
+    go, or rods dragged over near buckling: its ``releases`` or ``bent`` above 0; fem.rod_error)."""
+    text = _fmt(row.get(column))
+    if column.endswith("_force_err_est") and text != "-":
+        load = column[: -len("_force_err_est")]
+        if any((row.get(f"{load}_{k}") or 0) > 0 for k in ("releases", "bent")):
+            text += " (does not hold)"
+    return text
+
+
 def write_report(out: Path, records: list[dict], varies, meta: dict, summary: dict) -> list[Path]:
     """The CSV, Markdown table and plots of a sweep's records (module docstring); returns the files."""
     load_names = [ld["name"] for ld in meta["loads"]]
@@ -124,7 +137,7 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
     # a fixed order (the varied fields, each load's figures in load order, the rest), of the columns
     # some variant has a value in
     per_load = ("photons", "peak_rod_dn", "photons_per_n", "force_n", "stress_kpa", "strain_pct", "sf_stress", "sf_strain", "tears",
-                "force_err_est", "releases", "collapse_n")
+                "force_err_est", "releases", "bent", "collapse_n")
     order = ["variant", "label", *(v.name for v in varies), *(f"{n}_{m}" for n in load_names for m in per_load), "tear_risk", "tears",
              "hough_ok", "min_valley", "rim_gap_px", "hough_offset_px", "direction_mae_deg", "beam_strain_per_n", "tiers", "seconds", "failed"]
     present = {k for row in table for k, v in row.items() if v not in (None, "")}
@@ -142,7 +155,7 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
           f"{summary['stored']}/{summary['variants']} variants; loads {', '.join(load_names)}; metrics {', '.join(meta['metrics'])}; "
           f"direction angles {meta['angles_deg']} deg.", "",
           "| " + " | ".join(shown) + " |", "|" + "---|" * len(shown)]
-    md += ["| " + " | ".join(_fmt(row.get(c)) for c in shown) + " |" for row in table]
+    md += ["| " + " | ".join(_cell(row, c) for c in shown) + " |" for row in table]
     failures = [(row["label"], row["failed"]) for row in table if row["failed"]]
     if failures:
         md += ["", "## What failed", ""] + [f"- {label}: {why}" for label, why in failures]
@@ -155,7 +168,7 @@ def write_report(out: Path, records: list[dict], varies, meta: dict, summary: di
            "their per-rod contact force error (fem.quasistatic: first-order kinematics from the rods' bending; Cosserat rods from "
            "their ends' response turned with their tips, fem.rod_error; none with second-order rod kinematics); releases: with "
            "Cosserat rods, how many times a bent rod was let go (it snaps back at a step that depends on its frictional equilibrium: "
-           "where above 0 the estimate does not hold); collapse_n: the load the rods collapse at (the last that converged: held Cosserat "
+           "where above 0 the estimate does not hold); bent: with Cosserat rods, how many rods were dragged over, sliding past a tenth of their length under more than half their free Euler load (where their tips land follows the path: where above 0 the estimate does not hold; either marks the estimate \"does not hold\"); collapse_n: the load the rods collapse at (the last that converged: held Cosserat "
            "rods past their clamped-guided buckling load, where a dead load snaps through), in place of the load's figures; the deformed render tier is within 1 % per rod of path tracing (`mlsim accuracy --stage render`)."]
     files.append(out / "sweep.md")
     atomic_bytes(files[-1], ("\n".join(md) + "\n").encode())
