@@ -686,7 +686,6 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
         f_est = warm.f if warm.f is not None and warm.f.shape == X.shape else np.zeros_like(X)
         hidden, load = _hidden(kin, G, f_est)
         f_last = warm.f if warm.f is not None and warm.f.shape == X.shape else None
-        f_step = f_est  # the last step's forces: what this step's move is measured from
         mix = None
     drag = rigid_motion(pose_old, pose, X + u_prev)
     # first linearisation point: the guess, else every point carried along by the indenter (exact for
@@ -774,7 +773,8 @@ def solve_step(G: _Delassus, u0_points: np.ndarray, X: np.ndarray, shape, pose, 
             reached = float((-g_h[free] / G.inv_k[free]).sum()) if free.any() else 0.0
         floor = max(round_rtol * float(np.abs(fn).sum()), f_floor_n)
         if kin is not None and step_fraction is not None:
-            floor = max(min(floor, step_fraction * kin.resultant_change(f - f_step)), kin.ROUND_RTOL_LEAST * float(np.abs(fn).sum()), f_floor_n)
+            # the step's move: from the last step's forces (f_est)
+            floor = max(min(floor, step_fraction * kin.resultant_change(f - f_est)), kin.ROUND_RTOL_LEAST * float(np.abs(fn).sum()), f_floor_n)
         if misplaced <= max(10.0 * rtol * float(np.abs(fn).sum()), f_floor_n) and moved_h <= floor and reached <= max(floor, 10.0 * tol):
             break
         if relaxation is not None and (lin + 1) % rounds == 0:

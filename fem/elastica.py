@@ -38,9 +38,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.integrate import solve_ivp
-from scipy.optimize import brentq
-from scipy.special import ellipeinc, ellipkinc
+# scipy's integrator, root finder and elliptic integrals are imported where they are used: the buckling loads are
+# read by every Cosserat solve (fem.rod_error), whose workers need not load scipy.integrate
 
 __all__ = ["cantilever_tip", "cantilever_inclined_end", "centreline_under_point_load", "euler_load_clamped_free_n", "engesser_load_n",
            "haringx_load_n"]
@@ -48,6 +47,8 @@ __all__ = ["cantilever_tip", "cantilever_inclined_end", "centreline_under_point_
 
 def _alpha_of_tip_angle(theta0: float) -> tuple[float, float, float]:
     """(sqrt alpha, k^2, phi1) of the elastica whose tip angle is theta0 (rad, 0 < theta0 < pi/2)."""
+    from scipy.special import ellipkinc
+
     k2 = 0.5 * (1.0 + math.sin(theta0))
     phi1 = math.asin(min(1.0, 1.0 / math.sqrt(2.0 * k2)))
     return float(ellipkinc(0.5 * math.pi, k2) - ellipkinc(phi1, k2)), k2, phi1
@@ -63,6 +64,9 @@ def cantilever_tip(alpha: float) -> tuple[float, float, float]:
         raise ValueError(f"alpha = {alpha}: must be a finite P L^2 / EI >= 0")
     if alpha == 0.0:
         return 0.0, 1.0, 0.0
+    from scipy.optimize import brentq
+    from scipy.special import ellipeinc
+
     root = math.sqrt(alpha)
     # sqrt(alpha) rises monotonically from 0 to infinity as theta0 goes from 0 to pi/2
     hi = 0.5 * math.pi - 1e-12
@@ -99,6 +103,8 @@ def cantilever_inclined_end(alpha: float, phi_rad: float) -> tuple[float, float,
         raise ValueError(f"phi_rad = {phi_rad}: must be in (-pi/2, pi/2]")
     if alpha == 0.0:
         return 0.0, 1.0, 0.0
+    from scipy.integrate import solve_ivp
+    from scipy.optimize import brentq
 
     def rhs(_, y):
         return [y[1], -alpha * math.cos(y[0] - phi_rad), math.sin(y[0]), math.cos(y[0])]
@@ -136,6 +142,7 @@ def centreline_under_point_load(force_n: tuple[float, float], through_m: tuple[f
         raise ValueError(f"bending_stiffness_n_m2 = {bending_stiffness_n_m2}: must be a finite E I > 0")
     if not (np.isfinite(s_m) and s_m >= 0.0) or not np.all(np.isfinite([fx, fz, ax, az])):
         raise ValueError(f"s_m = {s_m}, force_n = {force_n}, through_m = {through_m}: must be finite, s_m >= 0")
+    from scipy.integrate import solve_ivp
 
     def rhs(s, y):
         theta, x, z = y

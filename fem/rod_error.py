@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fem.cosserat_rod import rotation_matrix
+from fem.elastica import euler_load_clamped_free_n
 from fem.rod_exact import CosseratKinematics
 
 __all__ = ["RELEASE_SIDEWAYS", "BENT_AXIAL", "SLIDING", "IDENTIFY_STANDARD_ERRORS", "ErrorEstimate", "local_block", "lateral_compliance_ratio", "section_mismatch",
@@ -167,7 +168,7 @@ def force_error_estimate(kin: CosseratKinematics, forces: np.ndarray, weights: n
     releases, last = [], {}  # last: rod -> (|F| N, sideways tip travel m) at the last distinct load
     bent, bent_rods = [], set()
     sec = kin.section
-    euler_n = np.pi**2 * min(sec.bending_n_m2) / (4.0 * sec.length_m**2)  # the free (clamped-free) Euler load
+    euler_n = euler_load_clamped_free_n(min(sec.bending_n_m2), sec.length_m)
     mismatch = {}  # rod -> section_mismatch, a property of the rod and the mesh
     for i, f in enumerate(forces):
         w = float(weights[i])
