@@ -12,7 +12,9 @@ PIP := $(PY) -m pip --disable-pip-version-check -q
 PYTEST_ARGS ?=
 # the suite on two processes (pytest-xdist), a test file per process: most tests are one thread of
 # Python or scipy, and two processes take 1.8 cores where one took 1.4 (661 -> 524 s on 2 cores).
-# `make test PYTEST_PROCS=0` runs it in one process.
+# `make test PYTEST_PROCS=0` runs it in one process. --warm-kernels compiles the numba kernels once, two processes
+# at once, before the workers start (tests/warm_kernels.py): on a fresh clone each worker compiled what the other had
+# not cached yet (the Cosserat Newton 45 s, the contact's ADMM 40 s).
 PYTEST_PROCS ?= 2
 # the slowest tests listed at the end of every run (CI's log too): what to make smaller when the suite nears
 # its 15 minutes on 2 cores
@@ -24,7 +26,7 @@ demo: $(STAMP)
 	$(VENV)/bin/mlsim run scenes/mavig_default.toml --out out/demo
 
 test: $(STAMP)
-	$(PY) -m pytest -n $(PYTEST_PROCS) --dist loadfile --durations=$(PYTEST_DURATIONS) $(PYTEST_ARGS)
+	$(PY) -m pytest -n $(PYTEST_PROCS) --dist loadfile --warm-kernels --durations=$(PYTEST_DURATIONS) $(PYTEST_ARGS)
 	$(MAKE) --no-print-directory docs
 
 # the documentation site into site/ (a warning fails it; about 15 s): docs/, mkdocs.yml, and the

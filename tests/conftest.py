@@ -33,6 +33,43 @@ def pytest_configure(config):
     import runpy
 
     runpy.run_path(str(ROOT / "tests" / "data" / "ship_meshes.py"))["seed_cache"](Path(os.environ["MLSIM_CACHE_DIR"]))
+    if config.getoption("warm_kernels"):
+        config._mlsim_warmed = _warm_kernels()
+
+
+def pytest_addoption(parser):
+    parser.addoption("--warm-kernels", action="store_true", default=False,
+                     help="compile the numba kernels once, a process per group at once, before the workers start "
+                          "(tests/warm_kernels.py; make test passes it)")
+
+
+def _warm_kernels():
+    """tests/warm_kernels.py's groups, each in its own process, all at once, on the session's cache: each xdist
+    worker would otherwise compile what the other had not cached yet. A group that fails only warns: the tests
+    that use its kernels will say what is wrong."""
+    import runpy
+    import warnings
+
+    script = ROOT / "tests" / "warm_kernels.py"
+    groups = runpy.run_path(str(script))["GROUPS"]
+    start = time.perf_counter()
+    logs = {g: open(Path(os.environ["MLSIM_CACHE_DIR"]) / f"warm_{g}.log", "w+") for g in groups}  # a pipe could fill
+    procs = {g: subprocess.Popen([sys.executable, str(script), g], cwd=ROOT, stdout=logs[g], stderr=subprocess.STDOUT)
+             for g in groups}
+    said = []
+    for g, proc in procs.items():
+        proc.wait()
+        logs[g].seek(0)
+        lines = logs[g].read().strip().splitlines()
+        logs[g].close()
+        if proc.returncode != 0:
+            warnings.warn(f"warming the {g} kernels failed (exit {proc.returncode}): {lines[-1:]}")
+        said.append(lines[-1] if proc.returncode == 0 and lines else f"{g}: failed")
+    return f"warmed the kernels in {time.perf_counter() - start:.0f} s ({'; '.join(said)})"
+
+
+def pytest_report_header(config):
+    return getattr(config, "_mlsim_warmed", None)
 
 
 def pytest_unconfigure(config):
