@@ -463,8 +463,8 @@ def test_rods_pressed_past_their_euler_load_stay_in_contact_as_the_slide_starts(
     carries their compression for a step, so a round that lets the contact go can find the rods out of the face
     while they spring back: the contact rounds also test the points the rods' new state carries into the face
     (fem.contact_admm.solve_step). Before, the steps from the slide's start alternated between no contact and
-    1.3 N per rod; now within 3 % of the nonlinear tier (measured 2.9 / 2.0 / 0.8 %). About 12 s and the
-    tall rods' mesh."""
+    1.3 N per rod; now within 3 % of the nonlinear tier (measured 2.9 / 2.0 / 0.8 %). About 25 s; the tall rods'
+    mesh is shipped (tests/data/meshes: its fresh build took 19 s, and each build is another mesh)."""
     from mlsim.studies.accuracy import relative_error, rod_measures
 
     scene, _, _, _ = tiny_mesh
