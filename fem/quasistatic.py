@@ -620,11 +620,11 @@ def run_episode(scene, mesh, body: LinearBody | None = None, settings: SolveSett
             # tiny scene's 2.5 mm mesh the layered section was 4-7 % softer sideways than the mesh's rods, and the held tier
             # 3.6 / 5.7 / 5.2 % off the nonlinear tier (rod-base von Mises / force / tip), with the identified one 2.2 / 3.3 / 3.0 %
             kinematics.local_compliance = delassus.elastic_block  # the tier's error estimate too (fem.rod_error)
-            scale = rod_error.identified_stiffness_scale(kinematics)
-            if scale != 1.0:
-                kinematics = make_exact(rod_exact.stiffened(kinematics.section, scale))
+            scales = rod_error.identified_section_scales(kinematics)
+            if scales != (1.0, 1.0):
+                kinematics = make_exact(rod_exact.stiffened(kinematics.section, *scales))
                 kinematics.local_compliance = delassus.elastic_block
-            timings["rod_section_scale"] = scale
+            timings["rod_section_scale"], timings["rod_section_shear_scale"] = scales
         contact_kw = {"delassus": delassus, "warm": contact_admm.WarmStart(kinematics=kinematics), "max_iterations": settings.contact_max_iterations}
     # force control finds the height by a secant on the total force to 1e-6 (condensed.solve_points_at_force):
     # the contact solves under it must be ten times tighter than that

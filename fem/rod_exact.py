@@ -31,8 +31,12 @@ kappa G A with Cowper's coefficient of the core's Poisson ratio, :func:`layered_
 only through q, the nonlinear part, and through the P-delta moment, so its small-load error (against
 the rod's 3-D FEM) enters the answer times how nonlinear the step is. Where the mesh's rods are
 systematically stiffer or softer sideways than it (beyond their own scatter), its bending and shear
-stiffnesses are identified from them (:func:`stiffened`, :func:`fem.rod_error.identified_stiffness_scale`;
-fem.quasistatic does it once the contact operator is built): the tiny scene's 2.5 mm mesh, 5 % stiffer.
+stiffnesses are identified from them (:func:`stiffened`, :func:`fem.rod_error.identified_section_scales`;
+fem.quasistatic does it once the contact operator is built): the bending stiffness from their tip compliance to a
+couple on the tip face, the shear stiffness from that to a sideways force (the tiny scene's 2.5 mm mesh: 5 % stiffer
+sideways; the 2 mm meshes' rods answer a couple about 0.81 of the section's). A flat face that grips the tip guides the
+rod, whose deflection is then the difference of the two: with the force's alone the 2 x 4 swipe's rods deflected half the
+body's, and the P-delta load with them (docs/stages/solve.md, solve stage 25).
 
 Stresses: the linear body's under f + f_pd, plus in each loaded rod Saint-Venant's recovery of the
 difference between the bent rod's section resultants (in the section's own frame) and the linear
@@ -149,10 +153,12 @@ def layered_section(radius_m: float, height_m: float, young_pa, poisson, thickne
                          (ei, ei), float(np.sum(G * 2.0 * inertia)), axial_law)
 
 
-def stiffened(section: cr.RodSection, scale: float) -> cr.RodSection:
-    """``section`` with its bending and shear stiffnesses times ``scale`` (axial and torsion kept): the section
-    identified from the mesh's rods' lateral tip compliance (:func:`fem.rod_error.identified_stiffness_scale`)."""
-    return dataclasses.replace(section, shear_n=section.shear_n * scale, bending_n_m2=tuple(b * scale for b in section.bending_n_m2))
+def stiffened(section: cr.RodSection, bending_scale: float, shear_scale: float | None = None) -> cr.RodSection:
+    """``section`` with its bending stiffnesses times ``bending_scale`` and its shear stiffness times ``shear_scale``
+    (default: the same; axial and torsion kept): the section identified from the mesh's rods' tip compliances
+    (:func:`fem.rod_error.identified_section_scales`)."""
+    shear_scale = bending_scale if shear_scale is None else shear_scale
+    return dataclasses.replace(section, shear_n=section.shear_n * shear_scale, bending_n_m2=tuple(b * bending_scale for b in section.bending_n_m2))
 
 
 def root_observation(points: np.ndarray, sections: RodSections, tol: float = 1e-7) -> sp.csr_matrix:

@@ -220,6 +220,31 @@ def test_the_section_identified_from_the_meshs_rod_gives_the_straight_rod_its_la
         assert rod_error.identified_stiffness_scale(fake) == pytest.approx(expected, rel=1e-12), ratios
 
 
+def test_the_section_identified_from_the_couple_and_the_force_gives_the_straight_rod_both_tip_compliances(rod0, tiny_mesh):
+    """A flat face guides a rod, whose deflection is the friction's cantilever deflection less the face's moment's: the
+    section must answer a couple on the tip face as the mesh's rod does, not only a sideways force. The tiny mesh's
+    rod answers a couple less than the layered section (ratio below 1, measured 0.70 and 0.74 here) and a force 4 %
+    less; the identified bending and shear stiffnesses (E I from the couple, kappa G A from the force) give the straight
+    Cosserat rod the mesh's couple compliance to round-off and its force compliance to 1e-3 (measured 8e-4: the
+    identification splits the force compliance as the continuous cantilever's, L^3 / 3 E I + L / kappa G A, where the
+    8-segment rod's split differs slightly)."""
+    kin, points, C, f = rod0
+    cols = lambda p: (3 * np.asarray(p)[:, None] + np.arange(3)).ravel()  # noqa: E731
+    kin.local_compliance = lambda p: C[np.ix_(cols(p), cols(p))]
+    try:
+        couple, force = rod_error.couple_compliance_ratio(kin, 0), rod_error.lateral_compliance_ratio(kin, 0)
+        assert np.all((couple > 0.5) & (couple < 0.95)) and np.all(force < 0.98), (couple, force)
+        bending, shear = rod_error.identified_section_scales(kin)
+        assert bending == pytest.approx(1.0 / couple.mean(), rel=1e-12)
+        identified = rx.CosseratKinematics(kin.sections, rx.stiffened(kin.section, bending, shear), kin.A, kin.obs_0, points.X, points.rod)
+        identified.local_compliance = kin.local_compliance
+        assert rod_error.couple_compliance_ratio(identified, 0).mean() == pytest.approx(1.0, abs=1e-9)
+        assert rod_error.lateral_compliance_ratio(identified, 0).mean() == pytest.approx(1.0, abs=1e-3)
+        assert identified.section.axial_n == kin.section.axial_n and identified.section.torsion_n_m2 == kin.section.torsion_n_m2
+    finally:
+        kin.local_compliance = None
+
+
 def test_the_scene_switch_is_validated(tiny_mesh):
     scene, _, mesh, _ = tiny_mesh
     cos = scene.with_values({"fidelity.solve.rod_kinematics": "cosserat", "fidelity.solve.contact_solver": "newton"})
@@ -435,8 +460,11 @@ def test_rods_held_under_a_slid_probe_come_to_rest_under_inertia(tiny_mesh, body
     hold = int(round(0.02 * 300.0 * 5))  # the hold's steps
     late = change[-hold // 2:]
     assert late.max() <= 3e-4 * pressed, (late.max(), pressed)
-    # resting, not ringing on: the last steps move no more than the hold's middle ones
-    assert late[-5:].max() <= 2.0 * max(late[:5].max(), 1e-6 * pressed), late
+    # resting, not ringing on: the last steps move no more than the hold's middle ones, or than the rounds' own
+    # tolerance (ROUND_RTOL_LEAST of the total normal force: with the section identified from the couple too, stage 25,
+    # the hold's changes sit at 3-9e-6 N, 1.4e-5 N that tolerance)
+    floor = rx.CosseratKinematics.ROUND_RTOL_LEAST * float(-force[-1, :, 2].sum())
+    assert late[-5:].max() <= 2.0 * max(late[:5].max(), floor), late
 
 
 def test_the_rods_inertia_is_refused_at_a_step_too_coarse_for_their_first_mode(tiny_mesh):
