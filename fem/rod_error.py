@@ -81,10 +81,10 @@ def local_block(kin: CosseratKinematics, j: int) -> np.ndarray:
     return kin._local[j]
 
 
-def lateral_compliance_ratio(kin: CosseratKinematics, j: int) -> np.ndarray | None:
-    """(2,): rod j's lateral tip compliance, FEM rod over section model, along x and y: the mean sideways displacement
-    of its tip face under a sideways force spread evenly on the face's points, by the linear body (the straight
-    Cosserat rod's plus :func:`local_block`'s) over the straight Cosserat rod's. None without a tip face."""
+def _tip_face_ratio(kin: CosseratKinematics, j: int, load) -> np.ndarray | None:
+    """(2,): the mean sideways displacement (along x, y) of rod j's tip face under the face loads ``load(c, face, offset)``
+    ((k, 3) N on the rod's k points, for direction c), by the linear body (the straight Cosserat rod's plus
+    :func:`local_block`'s) over the straight Cosserat rod's. None without a tip face, or where ``load`` gives None."""
     pts = kin._points[j]
     tip_z = kin.sections.base_z_m + kin.sections.length_m
     face = np.flatnonzero(kin.X[pts, 2] >= tip_z - 1e-7)
@@ -94,12 +94,35 @@ def lateral_compliance_ratio(kin: CosseratKinematics, j: int) -> np.ndarray | No
     segment, along, offset = kin._attach[j]
     out = np.ones(2)
     for c in range(2):
-        g = np.zeros((len(pts), 3))
-        g[face, c] = 1.0 / len(face)
+        g = load(c, face, offset, len(pts))
+        if g is None:
+            return None
         straight = kin._linear_positions(kin._linear_dofs(j, g), segment, along, offset)[face, c].mean()
         extra = (L @ g.ravel()).reshape(-1, 3)[face, c].mean()
-        out[c] = 1.0 + extra / straight if straight > 0.0 else 1.0
+        out[c] = 1.0 + extra / straight if straight != 0.0 else 1.0
     return out
+
+
+def _spread_force(c: int, face: np.ndarray, offset: np.ndarray, k: int) -> np.ndarray:
+    g = np.zeros((k, 3))
+    g[face, c] = 1.0 / len(face)
+    return g
+
+
+def _couple(c: int, face: np.ndarray, offset: np.ndarray, k: int) -> np.ndarray | None:
+    arm = offset[face, c] - offset[face, c].mean()
+    if not np.any(arm):
+        return None
+    g = np.zeros((k, 3))
+    g[face, 2] = -arm / np.sum(arm * arm)  # a unit couple: no net force
+    return g
+
+
+def lateral_compliance_ratio(kin: CosseratKinematics, j: int) -> np.ndarray | None:
+    """(2,): rod j's lateral tip compliance, FEM rod over section model, along x and y: the mean sideways displacement
+    of its tip face under a sideways force spread evenly on the face's points, by the linear body (the straight
+    Cosserat rod's plus :func:`local_block`'s) over the straight Cosserat rod's. None without a tip face."""
+    return _tip_face_ratio(kin, j, _spread_force)
 
 
 def couple_compliance_ratio(kin: CosseratKinematics, j: int) -> np.ndarray | None:
@@ -112,24 +135,7 @@ def couple_compliance_ratio(kin: CosseratKinematics, j: int) -> np.ndarray | Non
     face's restoring moment's, two nearly equal terms, so the section's couple response matters as much as its force
     response. On the swipe's and the default demo's 2 mm meshes the rods answer a couple 0.81 and 0.805 of the section's
     (0.64-1.04 from rod to rod), a sideways force within 1.6 % of it."""
-    pts = kin._points[j]
-    tip_z = kin.sections.base_z_m + kin.sections.length_m
-    face = np.flatnonzero(kin.X[pts, 2] >= tip_z - 1e-7)
-    if len(face) < 3:
-        return None
-    L = local_block(kin, j)
-    segment, along, offset = kin._attach[j]
-    out = np.ones(2)
-    for c in range(2):
-        arm = offset[face, c] - offset[face, c].mean()
-        if not np.any(arm):
-            return None
-        g = np.zeros((len(pts), 3))
-        g[face, 2] = -arm / np.sum(arm * arm)  # a unit couple: no net force
-        straight = kin._linear_positions(kin._linear_dofs(j, g), segment, along, offset)[face, c].mean()
-        extra = (L @ g.ravel()).reshape(-1, 3)[face, c].mean()
-        out[c] = 1.0 + extra / straight if straight != 0.0 else 1.0
-    return out
+    return _tip_face_ratio(kin, j, _couple)
 
 
 def section_mismatch(kin: CosseratKinematics, j: int) -> float:
@@ -153,11 +159,7 @@ def identified_stiffness_scale(kin: CosseratKinematics) -> float:
     0.4 %): kept at 1 there, where 0.996 let one rod held at 2 x its free Euler load buckle sideways in the slide on one
     mesh (tip displacement 21.5 -> 28.7 % off): a per-rod scatter is not a section, and a change inside it only
     tips such a rod one way or the other."""
-    ratios = np.array([r for j in range(len(kin.sections.rods)) if (r := lateral_compliance_ratio(kin, j)) is not None]).ravel()
-    if len(ratios) < 2:
-        return 1.0
-    mean, standard_error = float(ratios.mean()), float(ratios.std(ddof=1) / np.sqrt(len(ratios)))
-    return 1.0 / mean if abs(mean - 1.0) > IDENTIFY_STANDARD_ERRORS * standard_error else 1.0
+    return 1.0 / _identified([r for j in range(len(kin.sections.rods)) if (r := lateral_compliance_ratio(kin, j)) is not None])
 
 
 def _identified(ratios: list) -> float:
