@@ -4,7 +4,7 @@ which ``make test`` passes).
 Why: the kernels are ``cache=True``, but a fresh clone's cache is empty, and each xdist worker that meets a
 kernel before the other has cached it compiles it again. The Cosserat rods' Newton takes 45 s to compile and
 the contact's ADMM 40 s (2-vCPU EPYC), so the two workers spent minutes compiling the same code twice. Here
-each group compiles in its own process, all at once, into numba's cache that the workers then load.
+each group compiles in its own process, the two at once, into numba's cache that the workers then load.
 
 Each group runs the package's own entry points on small inputs, so that the kernels are compiled for the
 argument types the tests and the scenes pass:
@@ -12,16 +12,12 @@ argument types the tests and the scenes pass:
 - ``rods``: a Cosserat cantilever (:func:`fem.cosserat_rod.solve_static`: the batched Newton and its trust
   region) and the kernels' own pieces that tests/test_cosserat_kernels.py checks one by one; the compliant limb
   shell's pose estimators on a short series (planar and 6-DoF); the plantar skin's 250 Hz tick, a series and
-  double support (87 s cold on a 2-vCPU EPYC);
+  double support (87 s cold on a 2-vCPU EPYC, the ``chain`` group 121 s: the two end about together);
 - ``chain``: the tiny scene (``scenes/mavig_tiny.toml``) to the camera, on the session's cache
   (``MLSIM_CACHE_DIR``), so that its precomputes are the tests' too: the indenters' distance, the contact's
-  ADMM, the fields, the emission, the render's raster and transport, the camera (121 s);
-- ``dataset``: the dataset tests' sensor (tests/test_dataset.py's ``write_spec``: the screw scene on the shipped
-  3 mm mesh) through one episode, so that its precomputes (the reduced tier's, the render's) are in the session's
-  cache before the three dataset test files, which can run on both workers at once, each build them (their
-  module fixtures' set-ups took 77, 38 and 21 s; this group 81 s beside another solve on the 2 cores).
+  ADMM, the fields, the emission, the render's raster and transport, the camera.
 
-Usage: ``python tests/warm_kernels.py GROUP`` (``rods``, ``chain`` or ``dataset``); the conftest runs one process a group.
+Usage: ``python tests/warm_kernels.py GROUP`` (``rods`` or ``chain``); the conftest runs one process a group.
 """
 
 from __future__ import annotations
@@ -31,7 +27,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-GROUPS = ("rods", "chain", "dataset")
+GROUPS = ("rods", "chain")
 
 
 def rods() -> None:
@@ -75,28 +71,6 @@ def rods() -> None:
     estimate_series(skin, forces, gaps, wrench)
     convex_hull(rng.uniform(size=(10, 2)))
     double_support(one, FootPose((0.0, 0.0, 0.0)), one, FootPose((0.0, 0.2, 0.0)))
-
-
-def dataset() -> None:
-    """The dataset tests' sensor's precomputes, through their spec's first episode as the dataset's driver runs
-    it (:func:`mlsim.dataset.generate.generate`), without listing them: each test's own run still makes its
-    driver episode, from the cache."""
-    import os
-    import tempfile
-
-    from mlsim import pipeline
-    from mlsim.dataset import generate as gen
-    from mlsim.dataset.spec import load_dataset_spec
-
-    sys.path.insert(0, str(ROOT / "tests"))
-    from test_dataset import SMALL, write_spec
-
-    cache = pipeline.Cache(os.environ["MLSIM_CACHE_DIR"], keep=gen.CACHE_KEEP)
-    with tempfile.TemporaryDirectory() as tmp:
-        spec, base = load_dataset_spec(write_spec(Path(tmp), **SMALL))
-        job = gen.plan_episodes(spec)[0][0] | {"base_scene": base.model_dump(mode="json"), "interaction": spec.interaction.model_dump(mode="json"),
-                                               "cache_dir": str(cache.root), "store_frames": spec.store_frames}
-        pipeline.run(gen.episode_scene(job), cache=cache, outputs=("dllm",), progress=False, log=lambda m: None)
 
 
 def chain() -> None:
