@@ -40,8 +40,9 @@ BENT_AXIAL = 0.5
 #: the fraction of the friction limit (mu x the rod's normal force) above which a rod's sideways force is sliding
 SLIDING = 0.95
 
-#: the section is identified from the mesh's rods (:func:`identified_stiffness_scale`) where their mean lateral tip
-#: compliance is off the section's by more than this many standard errors of that mean (about 95 % one-sided)
+#: the section is identified from the mesh's rods (:func:`identified_section_scales`) where their mean tip compliance to a
+#: couple, or to a sideways force, is off the section's by more than this many standard errors of that mean (about 95 %
+#: one-sided)
 IDENTIFY_STANDARD_ERRORS = 2.0
 
 
@@ -159,12 +160,13 @@ def identified_stiffness_scale(kin: CosseratKinematics) -> float:
     0.4 %): kept at 1 there, where 0.996 let one rod held at 2 x its free Euler load buckle sideways in the slide on one
     mesh (tip displacement 21.5 -> 28.7 % off): a per-rod scatter is not a section, and a change inside it only
     tips such a rod one way or the other."""
-    return 1.0 / _identified([r for j in range(len(kin.sections.rods)) if (r := lateral_compliance_ratio(kin, j)) is not None])
+    return 1.0 / _identified(kin, lateral_compliance_ratio)
 
 
-def _identified(ratios: list) -> float:
-    """The mean of ``ratios`` where it is off 1 by more than IDENTIFY_STANDARD_ERRORS of its standard error, else 1."""
-    r = np.array(ratios, dtype=float).ravel()
+def _identified(kin: CosseratKinematics, ratio) -> float:
+    """The mean over the rods with a tip face, x and y, of ``ratio(kin, j)`` (:func:`lateral_compliance_ratio`,
+    :func:`couple_compliance_ratio`) where it is off 1 by more than IDENTIFY_STANDARD_ERRORS of its standard error, else 1."""
+    r = np.array([v for j in range(len(kin.sections.rods)) if (v := ratio(kin, j)) is not None], dtype=float).ravel()
     if len(r) < 2:
         return 1.0
     mean, standard_error = float(r.mean()), float(r.std(ddof=1) / np.sqrt(len(r)))
@@ -180,8 +182,7 @@ def identified_section_scales(kin: CosseratKinematics) -> tuple[float, float]:
     couple's ratio r_M sets E I (times 1 / r_M), then kappa G A is what makes c_F the force's ratio r_F times the
     section's. Where that asks for a shear compliance below zero (the mesh's rods far stiffer under a couple than
     under a force), the single factor 1 / r_F on both, as :func:`identified_stiffness_scale`."""
-    r_M = _identified([r for j in range(len(kin.sections.rods)) if (r := couple_compliance_ratio(kin, j)) is not None])
-    r_F = _identified([r for j in range(len(kin.sections.rods)) if (r := lateral_compliance_ratio(kin, j)) is not None])
+    r_M, r_F = _identified(kin, couple_compliance_ratio), _identified(kin, lateral_compliance_ratio)
     sec = kin.section
     length, bending, shear = sec.length_m, sec.bending_n_m2[0], sec.shear_n
     c_bend, c_shear = length**3 / (3.0 * bending), length / shear
